@@ -1,0 +1,31 @@
+"""Tunables and limits, in one place.
+
+numba freezes module globals into compiled code as constants, so kernels take these values as
+arguments (or are compiled against them once, as for array sizes); change them here only.
+"""
+
+# --- BVH build -------------------------------------------------------------------------------
+BVH_BINS = 16
+"""Bins per axis in the binned-SAH builder."""
+BVH_MAX_LEAF = 4
+"""Most triangles in one leaf. Leaves are never larger: the builder forces a split instead."""
+BVH_TRAVERSAL_COST = 1.0
+BVH_INTERSECT_COST = 1.0
+BVH_MAX_BUILD_DEPTH = 48
+"""Below this depth the builder stops trusting SAH and splits at the index median, which bounds
+the tree depth (and the traversal stack) for adversarial inputs such as collinear centroids."""
+TRAVERSAL_STACK_SIZE = 64
+"""Entries on a traversal stack. Ordered traversal pushes at most one node per level, and the
+builder keeps the depth below ``BVH_MAX_BUILD_DEPTH + log2(triangles)``, so 64 always suffices."""
+
+# --- Rays ------------------------------------------------------------------------------------
+SHADOW_EPSILON = 1e-9
+"""Shadow rays stop this fraction of their length short of the (already offset) light sample.
+A relative length, independent of the scene's scale; see docs/robustness.md."""
+
+# --- Limits on user input --------------------------------------------------------------------
+MAX_IMAGE_SIDE = 16384
+MAX_PIXELS = 64 * 1024 * 1024
+MAX_SPP = 1 << 20
+MAX_DEPTH = 1024
+MAX_SPHERE_SUBDIVISIONS = 8

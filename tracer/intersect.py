@@ -1,0 +1,322 @@
+"""Ray queries against a :class:`tracer.bvh.TraversalBVH`: closest hit and any hit.
+
+Robustness without epsilons (docs/robustness.md):
+
+* Triangles: the watertight test of Woop, Benthin and Wald (JCGT 2013), evaluated in float64 on
+  float32 vertices. A ray through a shared edge or vertex hits at least one of the triangles,
+  because both evaluate the shared edge function from the same operands.
+* Hits closer than the conservative error bound of their own ``t`` are rejected (pbrt-v4's
+  ``deltaT``), so a ray can never report its own origin surface at t ~ 0.
+* Boxes: the slab test ignores the NaN that ``0 * inf`` makes when a ray with a zero direction
+  component starts exactly on a slab plane (a NaN comparison is false, so it never tightens
+  the interval), and widens ``t_far`` by ``1 + 2 gamma(3)``.
+* Hit points carry a conservative error bound; :func:`offset_ray_origin` moves a spawned ray's
+  origin just past it, along the geometric normal, with a margin for its own rounding.
+
+All functions are ``inline='always'``: they take arrays, and a non-inlined call would cost
+reference-count traffic on every ray.
+"""
+
+import math
+
+import numpy as np
+
+from tracer.jit import jit, jit_inline
+
+MACHINE_EPSILON = np.finfo(np.float64).eps * 0.5
+
+
+def gamma(n):
+    """Bound on the relative error of n float64 operations (pbrt's gamma)."""
+    return (n * MACHINE_EPSILON) / (1.0 - n * MACHINE_EPSILON)
+
+
+GAMMA2 = gamma(2)
+GAMMA3 = gamma(3)
+GAMMA5 = gamma(5)
+GAMMA7 = gamma(7)
+SLAB_WIDEN = 1.0 + 2.0 * GAMMA3
+OFFSET_ROUNDING_MARGIN = 8.0 * MACHINE_EPSILON
+"""Covers sum_i |n_i| * ulp(o_i) <= sqrt(3) * 2 eps * max|o_i| for the rounded origin o."""
+
+
+@jit
+def ray_setup(o, d):
+    """Per-ray constants: reciprocal direction and the watertight test's axis permutation and shear.
+
+    Returns ``(ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz)``. ``n*`` is the
+    offset of each axis's near box plane (0 for min, 3 for max; -0.0 counts as negative). ``kz``
+    is the dominant axis of the direction; kx, ky follow it cyclically and are swapped when
+    ``d[kz] < 0`` to keep the winding; ``ok*`` are the origin's coordinates in that order.
+    """
+    dx, dy, dz = d
+    ix = 1.0 / dx
+    iy = 1.0 / dy
+    iz = 1.0 / dz
+    nx = 3 if ix < 0.0 else 0
+    ny = 3 if iy < 0.0 else 0
+    nz = 3 if iz < 0.0 else 0
+    ax = abs(dx)
+    ay = abs(dy)
+    az = abs(dz)
+    if ax > ay and ax > az:
+        kz = 0
+    elif ay > az:
+        kz = 1
+    else:
+        kz = 2
+    kx = kz + 1 if kz < 2 else 0
+    ky = kx + 1 if kx < 2 else 0
+    dkz = d[kz]
+    if dkz < 0.0:
+        kx, ky = ky, kx
+    sz = 1.0 / dkz
+    sx = d[kx] * sz
+    sy = d[ky] * sz
+    return ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, o[kx], o[ky], o[kz]
+
+
+@jit_inline
+def slab(bounds, node, off, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
+    """Entry distance of the ray into box ``bounds[node, off:off+6]`` within [0, t_max], or inf.
+
+    ``nx, ny, nz`` select each axis's near plane (0: min, 3: max) from the direction's sign, so
+    no per-box swaps are needed. Comparisons are written so that a NaN slab distance (0 * inf)
+    constrains nothing.
+    """
+    near = 0.0
+    far = t_max
+    t = (bounds[node, off + nx] - ox) * ix
+    if t > near:
+        near = t
+    t = (bounds[node, off + 3 - nx] - ox) * ix
+    if t < far:
+        far = t
+    t = (bounds[node, off + 1 + ny] - oy) * iy
+    if t > near:
+        near = t
+    t = (bounds[node, off + 4 - ny] - oy) * iy
+    if t < far:
+        far = t
+    t = (bounds[node, off + 2 + nz] - oz) * iz
+    if t > near:
+        near = t
+    t = (bounds[node, off + 5 - nz] - oz) * iz
+    if t < far:
+        far = t
+    return near if near <= far * SLAB_WIDEN else np.inf
+
+
+@jit_inline
+def intersect_triangle(tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max):
+    """Watertight ray-triangle test for triangle ``j``, with the constants of :func:`ray_setup`.
+
+    Returns ``(t, b0, b1, b2)`` with ``t`` in (0, t_max), or ``t = inf`` for a miss.
+    """
+    # Translate to the ray origin, permute so the dominant axis is z, shear to align the ray with z.
+    az_ = tri_verts[j, kz] - okz
+    bz_ = tri_verts[j, 3 + kz] - okz
+    cz_ = tri_verts[j, 6 + kz] - okz
+    ax = tri_verts[j, kx] - okx - sx * az_
+    ay = tri_verts[j, ky] - oky - sy * az_
+    bx = tri_verts[j, 3 + kx] - okx - sx * bz_
+    by = tri_verts[j, 3 + ky] - oky - sy * bz_
+    cx = tri_verts[j, 6 + kx] - okx - sx * cz_
+    cy = tri_verts[j, 6 + ky] - oky - sy * cz_
+    # Edge functions.
+    u = cx * by - cy * bx
+    v = ax * cy - ay * cx
+    w = bx * ay - by * ax
+    if (u < 0.0 or v < 0.0 or w < 0.0) and (u > 0.0 or v > 0.0 or w > 0.0):
+        return np.inf, 0.0, 0.0, 0.0
+    det = u + v + w
+    if det == 0.0:
+        return np.inf, 0.0, 0.0, 0.0
+    az = sz * az_
+    bz = sz * bz_
+    cz = sz * cz_
+    t_scaled = u * az + v * bz + w * cz
+    if det < 0.0 and (t_scaled >= 0.0 or t_scaled < t_max * det):
+        return np.inf, 0.0, 0.0, 0.0
+    if det > 0.0 and (t_scaled <= 0.0 or t_scaled > t_max * det):
+        return np.inf, 0.0, 0.0, 0.0
+    inv_det = 1.0 / det
+    t = t_scaled * inv_det
+    # Reject hits within the error bound of t = 0 (pbrt-v4, Triangle::Intersect).
+    max_zt = max(abs(az), max(abs(bz), abs(cz)))
+    max_xt = max(abs(ax), max(abs(bx), abs(cx)))
+    max_yt = max(abs(ay), max(abs(by), abs(cy)))
+    delta_z = GAMMA3 * max_zt
+    delta_x = GAMMA5 * (max_xt + max_zt)
+    delta_y = GAMMA5 * (max_yt + max_zt)
+    delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt)
+    max_e = max(abs(u), max(abs(v), abs(w)))
+    delta_t = 3.0 * (GAMMA3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * abs(inv_det)
+    if t <= delta_t:
+        return np.inf, 0.0, 0.0, 0.0
+    return t, u * inv_det, v * inv_det, w * inv_det
+
+
+@jit_inline
+def intersect(node_bounds, node_child, tri_verts, o, d, t_max, stack_node, stack_t):
+    """Closest hit of the ray ``o + t d``, ``t`` in (0, t_max).
+
+    Returns ``(j, t, b0, b1, b2, cost)``: ``j`` the hit triangle in leaf order (-1 for a miss),
+    barycentrics of the hit, and the node visits plus triangle tests spent (a work measure).
+    """
+    ox, oy, oz = o
+    ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
+    hit = -1
+    t_hit = t_max
+    hb0 = 0.0
+    hb1 = 0.0
+    hb2 = 0.0
+    cost = 0
+    sp = 0
+    node = 0
+    while True:
+        cost += 1
+        c0 = node_child[node, 0]
+        c1 = node_child[node, 1]
+        t0 = slab(node_bounds, node, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit)
+        t1 = slab(node_bounds, node, 6, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit)
+        if t1 < t0:
+            c0, c1 = c1, c0
+            t0, t1 = t1, t0
+        next_node = -1
+        # Near child first: test a leaf now, descend into an interior node next.
+        if t0 < t_hit:
+            if c0 < 0:
+                v = -1 - c0
+                first = v >> 3
+                for j in range(first, first + (v & 7)):
+                    cost += 1
+                    t, b0, b1, b2 = intersect_triangle(
+                        tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
+                    )
+                    if t < t_hit:
+                        t_hit = t
+                        hit = j
+                        hb0 = b0
+                        hb1 = b1
+                        hb2 = b2
+            else:
+                next_node = c0
+        if t1 < t_hit:
+            if c1 < 0:
+                v = -1 - c1
+                first = v >> 3
+                for j in range(first, first + (v & 7)):
+                    cost += 1
+                    t, b0, b1, b2 = intersect_triangle(
+                        tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
+                    )
+                    if t < t_hit:
+                        t_hit = t
+                        hit = j
+                        hb0 = b0
+                        hb1 = b1
+                        hb2 = b2
+            elif next_node < 0:
+                next_node = c1
+            else:
+                stack_node[sp] = c1
+                stack_t[sp] = t1
+                sp += 1
+        if next_node >= 0:
+            node = next_node
+            continue
+        # Pop the nearest pending node that can still hold a closer hit.
+        node = -1
+        while sp > 0:
+            sp -= 1
+            if stack_t[sp] < t_hit:
+                node = stack_node[sp]
+                break
+        if node < 0:
+            return hit, t_hit, hb0, hb1, hb2, cost
+
+
+@jit_inline
+def occluded(node_bounds, node_child, tri_verts, o, d, t_max, stack_node):
+    """Whether anything lies on the ray ``o + t d`` for ``t`` in (0, t_max). Returns (hit, cost)."""
+    ox, oy, oz = o
+    ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
+    cost = 0
+    sp = 0
+    node = 0
+    while True:
+        cost += 1
+        for side in range(2):
+            c = node_child[node, side]
+            if slab(node_bounds, node, 6 * side, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max) < t_max:
+                if c < 0:
+                    v = -1 - c
+                    first = v >> 3
+                    for j in range(first, first + (v & 7)):
+                        cost += 1
+                        t, _, _, _ = intersect_triangle(
+                            tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max
+                        )
+                        if t < t_max:
+                            return True, cost
+                else:
+                    stack_node[sp] = c
+                    sp += 1
+        if sp == 0:
+            return False, cost
+        sp -= 1
+        node = stack_node[sp]
+
+
+@jit_inline
+def hit_point(tri_verts, j, b0, b1, b2):
+    """Hit point from barycentrics, with a conservative bound on its absolute error per axis."""
+    px = b0 * tri_verts[j, 0] + b1 * tri_verts[j, 3] + b2 * tri_verts[j, 6]
+    py = b0 * tri_verts[j, 1] + b1 * tri_verts[j, 4] + b2 * tri_verts[j, 7]
+    pz = b0 * tri_verts[j, 2] + b1 * tri_verts[j, 5] + b2 * tri_verts[j, 8]
+    ex = GAMMA7 * (
+        abs(b0 * tri_verts[j, 0]) + abs(b1 * tri_verts[j, 3]) + abs(b2 * tri_verts[j, 6])
+    )
+    ey = GAMMA7 * (
+        abs(b0 * tri_verts[j, 1]) + abs(b1 * tri_verts[j, 4]) + abs(b2 * tri_verts[j, 7])
+    )
+    ez = GAMMA7 * (
+        abs(b0 * tri_verts[j, 2]) + abs(b1 * tri_verts[j, 5]) + abs(b2 * tri_verts[j, 8])
+    )
+    return (px, py, pz), (ex, ey, ez)
+
+
+@jit_inline
+def geometric_normal(tri_verts, j):
+    """Unit normal of triangle ``j`` by the right-hand rule (counter-clockwise front face)."""
+    x0 = np.float64(tri_verts[j, 0])
+    y0 = np.float64(tri_verts[j, 1])
+    z0 = np.float64(tri_verts[j, 2])
+    e1x = tri_verts[j, 3] - x0
+    e1y = tri_verts[j, 4] - y0
+    e1z = tri_verts[j, 5] - z0
+    e2x = tri_verts[j, 6] - x0
+    e2y = tri_verts[j, 7] - y0
+    e2z = tri_verts[j, 8] - z0
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    length = math.sqrt(nx * nx + ny * ny + nz * nz)
+    return (nx / length, ny / length, nz / length), 0.5 * length
+
+
+@jit
+def offset_ray_origin(p, err, n, w):
+    """Origin for a ray leaving ``p`` (error ``err``) in direction ``w``, past the error bound.
+
+    Moves along the geometric normal ``n``, to the side ``w`` points to, by the projection of the
+    error box onto ``n`` plus a margin covering the rounding of the move itself (pbrt-v4's
+    OffsetRayOrigin rounds with nextafter instead; the margin is the same guarantee, cheaper).
+    """
+    dist = abs(n[0]) * err[0] + abs(n[1]) * err[1] + abs(n[2]) * err[2]
+    magnitude = max(abs(p[0]), max(abs(p[1]), abs(p[2]))) + dist
+    dist += OFFSET_ROUNDING_MARGIN * magnitude
+    if n[0] * w[0] + n[1] * w[1] + n[2] * w[2] < 0.0:
+        dist = -dist
+    return (p[0] + dist * n[0], p[1] + dist * n[1], p[2] + dist * n[2])

@@ -1,0 +1,44 @@
+"""Where numba keeps compiled kernels.
+
+numba's cache is keyed by the source file of each jitted function only: an edit to a helper in
+another module does not invalidate the kernels that inline it. We therefore key the cache
+directory on a hash of every module in this package, so a changed tracer never reuses stale
+machine code. ``TILERENDER_NUMBA_CACHE`` (or ``NUMBA_CACHE_DIR``, when set by the user) chooses
+the base directory; the default is ``~/.cache/tilerender/numba``.
+"""
+
+import hashlib
+import os
+from pathlib import Path
+
+_PACKAGE_DIR = Path(__file__).resolve().parent
+
+
+def source_digest() -> str:
+    """Short hash of the tracer package's Python sources."""
+    digest = hashlib.sha256()
+    for path in sorted(_PACKAGE_DIR.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def cache_base() -> Path:
+    """The base directory under which versioned kernel caches live."""
+    configured = os.environ.get("TILERENDER_NUMBA_CACHE")
+    if configured:
+        return Path(configured)
+    return Path.home() / ".cache" / "tilerender" / "numba"
+
+
+def configure() -> Path:
+    """Point ``NUMBA_CACHE_DIR`` at the versioned cache directory, unless numba is configured.
+
+    Must run before numba is imported for the setting to take effect; ``tracer/__init__`` does it.
+    Returns the directory used.
+    """
+    if "NUMBA_CACHE_DIR" in os.environ and "TILERENDER_NUMBA_CACHE" not in os.environ:
+        return Path(os.environ["NUMBA_CACHE_DIR"])
+    path = cache_base() / source_digest()
+    os.environ["NUMBA_CACHE_DIR"] = str(path)
+    return path

@@ -1,0 +1,146 @@
+"""Batched ray queries over a BVH: closest hit and any hit for arrays of rays.
+
+Used by the ray-casting benchmark, the robustness tests and single-ray queries. Rays are
+interleaved over threads (``threads``, default every CPU); each answer depends only on the ray.
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+
+from tracer import config
+from tracer.bvh import TraversalBVH
+from tracer.intersect import intersect, occluded
+from tracer.jit import jit
+from tracer.threads import run_parts
+
+
+class Hits(NamedTuple):
+    """Closest hits: ``prim`` original triangle index (-1 for a miss), ``t`` distance (inf for a
+    miss), barycentrics ``b`` (M, 3) of the hit, and ``cost`` node visits plus triangle tests."""
+
+    prim: np.ndarray
+    t: np.ndarray
+    b: np.ndarray
+    cost: np.ndarray
+
+
+@jit
+def _closest(
+    node_bounds,
+    node_child,
+    tri_verts,
+    tri_prim,
+    origins,
+    directions,
+    t_max,
+    stack_size,
+    first,
+    stride,
+    prim,
+    t_out,
+    bary,
+    cost,
+):
+    stack_node = np.empty(stack_size, np.int32)
+    stack_t = np.empty(stack_size, np.float64)
+    for i in range(first, origins.shape[0], stride):
+        o = (origins[i, 0], origins[i, 1], origins[i, 2])
+        d = (directions[i, 0], directions[i, 1], directions[i, 2])
+        j, t, b0, b1, b2, c = intersect(
+            node_bounds, node_child, tri_verts, o, d, t_max[i], stack_node, stack_t
+        )
+        cost[i] = c
+        if j >= 0:
+            prim[i] = tri_prim[j]
+            t_out[i] = t
+            bary[i, 0] = b0
+            bary[i, 1] = b1
+            bary[i, 2] = b2
+
+
+@jit
+def _any(
+    node_bounds, node_child, tri_verts, origins, directions, t_max, stack_size, first, stride, hit
+):
+    stack_node = np.empty(stack_size, np.int32)
+    for i in range(first, origins.shape[0], stride):
+        o = (origins[i, 0], origins[i, 1], origins[i, 2])
+        d = (directions[i, 0], directions[i, 1], directions[i, 2])
+        h, _ = occluded(node_bounds, node_child, tri_verts, o, d, t_max[i], stack_node)
+        hit[i] = h
+
+
+def _check_rays(origins, directions, t_max):
+    origins = np.ascontiguousarray(origins, dtype=np.float64)
+    directions = np.ascontiguousarray(directions, dtype=np.float64)
+    if origins.ndim != 2 or origins.shape[1] != 3 or directions.shape != origins.shape:
+        raise ValueError("origins and directions must both have shape (N, 3)")
+    if not (np.isfinite(origins).all() and np.isfinite(directions).all()):
+        raise ValueError("ray origins and directions must be finite")
+    if (np.abs(directions).max(axis=1, initial=0.0) == 0.0).any():
+        raise ValueError("ray directions must be non-zero")
+    if t_max is None:
+        t_max = np.full(origins.shape[0], np.inf)
+    t_max = np.ascontiguousarray(np.broadcast_to(t_max, (origins.shape[0],)), dtype=np.float64)
+    if np.isnan(t_max).any():
+        raise ValueError("t_max must not be NaN")
+    return origins, directions, t_max
+
+
+def closest_hits(
+    bvh: TraversalBVH,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    t_max: np.ndarray | float | None = None,
+    threads: int | None = None,
+) -> Hits:
+    """Closest hit of each ray ``origins[i] + t * directions[i]``, ``t`` in (0, t_max).
+
+    Parameters
+    ----------
+    origins, directions : float array, shape (N, 3)
+        Directions need not be unit length; ``t`` is in units of the given direction.
+    t_max : float or float array, shape (N,), optional
+        Upper bound on ``t`` (default: no bound).
+    """
+    origins, directions, t_max = _check_rays(origins, directions, t_max)
+    n = origins.shape[0]
+    hits = Hits(
+        np.full(n, -1, np.int32), np.full(n, np.inf), np.zeros((n, 3)), np.zeros(n, np.int64)
+    )
+    args = (
+        bvh.node_bounds,
+        bvh.node_child,
+        bvh.tri_verts,
+        bvh.tri_prim,
+        origins,
+        directions,
+        t_max,
+        config.TRAVERSAL_STACK_SIZE,
+    )
+    run_parts(lambda part, parts: _closest(*args, part, parts, *hits), threads)
+    return hits
+
+
+def any_hits(
+    bvh: TraversalBVH,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    t_max: np.ndarray | float | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Whether each ray meets any triangle for ``t`` in (0, t_max); bool array, shape (N,)."""
+    origins, directions, t_max = _check_rays(origins, directions, t_max)
+    hit = np.zeros(origins.shape[0], np.bool_)
+    args = (
+        bvh.node_bounds,
+        bvh.node_child,
+        bvh.tri_verts,
+        origins,
+        directions,
+        t_max,
+        config.TRAVERSAL_STACK_SIZE,
+    )
+    run_parts(lambda part, parts: _any(*args, part, parts, hit), threads)
+    return hit

@@ -1,0 +1,126 @@
+"""Public entry points: render a line range, or a whole image with progress.
+
+``render_lines`` is what a tracer runs for its share of a frame; ``render_image`` loops over
+line chunks in Python (one jitted call each), so progress and cancellation stay outside the
+kernel.
+"""
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracer import config
+from tracer import scene_format as fmt
+from tracer.camera import camera_array
+from tracer.compile import CompiledScene
+from tracer.integrator import render_pixels
+from tracer.threads import run_parts
+
+
+@dataclass
+class RenderedLines:
+    """Lines [y0, y1): ``rgb`` float32 (y1-y0, W, 3) linear radiance, mean of ``spp`` samples;
+    ``cost`` int64 (y1-y0,) work per line (BVH node visits plus triangle tests)."""
+
+    y0: int
+    y1: int
+    rgb: np.ndarray
+    cost: np.ndarray
+    spp: int
+    seconds: float
+
+
+def render_lines(
+    scene: CompiledScene,
+    y0: int,
+    y1: int,
+    camera: fmt.Camera | None = None,
+    settings: fmt.RenderSettings | None = None,
+    frame: int = 0,
+    sample_start: int = 0,
+    threads: int | None = None,
+) -> RenderedLines:
+    """Render lines [y0, y1) of a frame.
+
+    Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
+    sample ranges give independent estimates that average to the larger render. ``threads``
+    defaults to every CPU this process may use.
+    """
+    camera = camera or scene.camera
+    settings = settings or scene.render
+    if not 0 <= y0 < y1 <= camera.height:
+        raise ValueError(f"line range [{y0}, {y1}) is not inside [0, {camera.height})")
+    if frame < 0 or sample_start < 0:
+        raise ValueError("frame and sample_start must be non-negative")
+    cam = camera_array(
+        np.asarray(camera.position) - scene.origin,
+        np.asarray(camera.look_at) - scene.origin,
+        camera.up,
+        camera.vfov_deg,
+        camera.width,
+        camera.height,
+    )
+    rgb = np.empty((y1 - y0, camera.width, 3), np.float32)
+    cost = np.empty((y1 - y0, camera.width), np.int64)
+    start = time.perf_counter()
+    args = (
+        scene.bvh.node_bounds,
+        scene.bvh.node_child,
+        scene.bvh.tri_verts,
+        scene.tri_material,
+        scene.materials.albedo,
+        scene.materials.emission,
+        scene.materials.two_sided,
+        scene.lights.tri,
+        scene.lights.cdf,
+        scene.lights.total_power,
+        cam,
+        camera.width,
+        camera.height,
+        y0,
+        y1,
+        sample_start,
+        settings.spp,
+        settings.max_depth,
+        settings.rr_depth,
+        settings.seed,
+        frame,
+        1.0 - config.SHADOW_EPSILON,
+        config.TRAVERSAL_STACK_SIZE,
+    )
+    run_parts(lambda part, parts: render_pixels(*args, part, parts, rgb, cost), threads)
+    seconds = time.perf_counter() - start
+    return RenderedLines(y0, y1, rgb, cost.sum(axis=1), settings.spp, seconds)
+
+
+def render_image(
+    scene: CompiledScene,
+    camera: fmt.Camera | None = None,
+    settings: fmt.RenderSettings | None = None,
+    frame: int = 0,
+    sample_start: int = 0,
+    lines_per_call: int | None = None,
+    threads: int | None = None,
+    on_lines: Callable[[RenderedLines], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Render a whole frame; returns ``(rgb float32 (H, W, 3), cost int64 (H,))``.
+
+    ``on_lines`` is called after each chunk (for progress bars).
+    """
+    camera = camera or scene.camera
+    settings = settings or scene.render
+    if lines_per_call is None:
+        # About 2**16 samples a call: short enough for smooth progress, long enough to amortise.
+        lines_per_call = max(1, min(camera.height, 65536 // max(1, camera.width * settings.spp)))
+    image = np.empty((camera.height, camera.width, 3), np.float32)
+    cost = np.empty(camera.height, np.int64)
+    for y0 in range(0, camera.height, lines_per_call):
+        y1 = min(camera.height, y0 + lines_per_call)
+        part = render_lines(scene, y0, y1, camera, settings, frame, sample_start, threads)
+        image[y0:y1] = part.rgb
+        cost[y0:y1] = part.cost
+        if on_lines is not None:
+            on_lines(part)
+    return image, cost
