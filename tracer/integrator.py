@@ -15,13 +15,14 @@ from tracer.camera import primary_ray
 from tracer.intersect import geometric_normal, hit_point, intersect, occluded, offset_ray_origin
 from tracer.jit import jit, jit_inline
 from tracer.lights import emission_mean, sample_emitter
-from tracer.rng import sample_key, uniform
+from tracer.rng import pixel_key, sample_key, uniform, uniform2
 from tracer.sampling import power_heuristic
 from tracer.vecmath import dot, max_component, sub
 
 DIMS_PER_VERTEX = 8
-"""Random dimensions reserved per path vertex: light choice (1), light point (2), BSDF (2),
-Russian roulette (1), two spare. Dimensions 0 and 1 jitter the pixel position."""
+"""Random dimensions reserved per path vertex: light choice (+0), light point (+1, two 32-bit
+uniforms), BSDF direction (+2, two), Russian roulette (+3), four spare. Dimension 0 jitters the
+pixel position (two)."""
 
 
 @jit_inline
@@ -88,11 +89,12 @@ def trace_path(
             np.float64(mat_albedo[mat, 1]),
             np.float64(mat_albedo[mat, 2]),
         )
-        dim = 2 + (depth - 1) * DIMS_PER_VERTEX
+        dim = 1 + (depth - 1) * DIMS_PER_VERTEX
 
         # Sample a light (next-event estimation) and trace a shadow ray to it.
         if n_lights > 0:
-            u = (uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+            u1, u2 = uniform2(key, dim + 1)
+            u = (uniform(key, dim), u1, u2)
             lj, q, q_err, n_l, l_area, p_select = sample_emitter(
                 light_tri, light_cdf, light_total, tri_verts, tri_material, mat_emission, u
             )
@@ -128,7 +130,8 @@ def trace_path(
                             L2 += beta[2] * f[2] * mat_emission[l_mat, 2] * k
 
         # Sample the BSDF for the next direction and update the throughput.
-        wi, weight, pdf = diffuse_sample(albedo, n, uniform(key, dim + 3), uniform(key, dim + 4))
+        u1, u2 = uniform2(key, dim + 2)
+        wi, weight, pdf = diffuse_sample(albedo, n, u1, u2)
         if pdf <= 0.0:
             break
         beta = (beta[0] * weight[0], beta[1] * weight[1], beta[2] * weight[2])
@@ -138,7 +141,7 @@ def trace_path(
         # Russian roulette: survive with probability q and divide by it (unbiased).
         if depth > rr_depth:
             q_survive = min(0.95, max_component(beta))
-            if uniform(key, dim + 5) >= q_survive:
+            if uniform(key, dim + 3) >= q_survive:
                 break
             beta = (beta[0] / q_survive, beta[1] / q_survive, beta[2] / q_survive)
 
@@ -190,14 +193,15 @@ def render_pixels(
         row = i // width
         x = i - row * width
         y = y0 + row
-        pixel = y * width + x
+        p_key = pixel_key(seed, frame, y * width + x)
         acc0 = 0.0
         acc1 = 0.0
         acc2 = 0.0
         cost = 0
         for s in range(sample_start, sample_start + spp):
-            key = sample_key(seed, frame, pixel, s)
-            o, d = primary_ray(camera, width, height, x + uniform(key, 0), y + uniform(key, 1))
+            key = sample_key(p_key, s)
+            jx, jy = uniform2(key, 0)
+            o, d = primary_ray(camera, width, height, x + jx, y + jy)
             L, c = trace_path(
                 node_bounds,
                 node_child,
