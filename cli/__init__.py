@@ -1,1 +1,1 @@
-"""placeholder"""
+"""The ``tilerender`` command line."""

@@ -202,3 +202,13 @@ class SceneFile(Strict):
                     f"(defined: {known})"
                 )
         return self
+
+
+def override(model: Strict, **changes) -> Strict:
+    """A copy of ``model`` with ``changes`` (``None`` values ignored), validated like the input.
+
+    Raises pydantic's ValidationError for a value the model would refuse in a file.
+    """
+    data = model.model_dump()
+    data.update({k: v for k, v in changes.items() if v is not None})
+    return type(model).model_validate(data)

@@ -1,0 +1,132 @@
+"""``tilerender``: render scenes from the command line.
+
+Every failure a user can cause (a bad scene, a bad option, an unwritable output) ends with one
+line on stderr and exit code 2; nothing is written. Ctrl-C exits with 130, also writing nothing.
+"""
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+DESCRIPTION = """\
+tilerender: a Brigade-style path tracer.
+
+Scenes are tilerender/1 JSON files (docs/scene-format.md) or single mesh files
+(glTF, GLB, OBJ, PLY, STL), which get a framing camera and, if nothing emits,
+a default area light. Images are linear radiance; .png is written in sRGB."""
+
+EPILOG = """\
+examples:
+  tilerender render scenes/cornell-box/scene.json -o cornell.png
+  tilerender render scenes/cornell-box/scene.json -o cornell.exr --spp 256 --seed 7
+  tilerender render model.glb -o model.png --width 800 --height 600
+  tilerender samples --out renders
+  tilerender info scenes/cornell-box/scene.json"""
+
+
+class UsageError(Exception):
+    """A problem with the command line or its inputs, reported in one line."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, not a usage dump
+        raise UsageError(f"{self.prog}: {message} (see --help)")
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="tilerender",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    render = sub.add_parser(
+        "render",
+        help="render a scene to an image file",
+        description="Render SCENE to OUT; the format follows OUT's extension "
+        "(.png sRGB 8-bit, .exr float32 linear, .npy float32 linear (H, W, 3), row 0 at the top). "
+        "Options override the scene file's camera and render settings.",
+    )
+    render.add_argument(
+        "scene", metavar="SCENE", help="scene .json, or a .gltf/.glb/.obj/.ply/.stl"
+    )
+    render.add_argument("-o", "--output", required=True, metavar="OUT", help="image to write")
+    add_render_options(render)
+
+    samples = sub.add_parser(
+        "samples",
+        help="render every sample scene into a directory",
+        description="Render each scene under --scenes (a scene.json per folder, or a folder's "
+        "single glTF/GLB file) to OUT/<folder>.png and .exr.",
+    )
+    samples.add_argument("--out", default="renders", metavar="DIR", help="(default: renders)")
+    samples.add_argument("--scenes", default=None, metavar="DIR", help="(default: the repo's)")
+    samples.add_argument("--spp", type=positive_int, help="samples per pixel for every scene")
+    samples.add_argument("--threads", type=positive_int, help="render threads (default: all)")
+    samples.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+    info = sub.add_parser("info", help="describe a scene: geometry, materials, lights, camera")
+    info.add_argument("scene", metavar="SCENE")
+    return parser
+
+
+def add_render_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--spp", type=positive_int, help="samples per pixel")
+    parser.add_argument("--width", type=positive_int, help="image width in pixels")
+    parser.add_argument("--height", type=positive_int, help="image height in pixels")
+    parser.add_argument("--seed", type=non_negative_int, help="random seed")
+    parser.add_argument(
+        "--max-depth",
+        type=positive_int,
+        help="path vertices after the camera: 1 = emitters only, 2 = direct light",
+    )
+    parser.add_argument("--threads", type=positive_int, help="render threads (default: all CPUs)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``tilerender`` console script."""
+    try:
+        args = build_parser().parse_args(argv)
+        from cli import commands  # heavy imports (numba, trimesh) only once the line parses
+
+        return commands.run(args)
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("interrupted; nothing written", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # e.g. `tilerender info ... | head`
+        sys.stderr.close()
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,91 @@
+"""Write and read rendered images: PNG (sRGB, 8 bit), EXR (float32 linear), NPY (float32 linear).
+
+Writes are atomic: the image goes to a temporary file beside the target, which is renamed into
+place only when complete, so a failed or interrupted render never leaves a partial file.
+"""
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+FORMATS = (".png", ".exr", ".npy")
+
+
+def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
+    """Clamp linear RGB to [0, 1] and encode with the sRGB transfer curve as uint8."""
+    x = np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+    return np.round(srgb * 255.0).astype(np.uint8)
+
+
+def check_output_path(path: str | Path) -> Path:
+    """The output path, if its extension names a format we write; ValueError otherwise."""
+    path = Path(path)
+    if path.suffix.lower() not in FORMATS:
+        raise ValueError(
+            f"{path}: unknown image format {path.suffix or '(none)'!r}; use one of "
+            + ", ".join(FORMATS)
+        )
+    if path.is_dir():
+        raise ValueError(f"{path}: is a directory")
+    return path
+
+
+def write_image(path: str | Path, rgb: np.ndarray, metadata: dict | None = None) -> Path:
+    """Write float32 linear RGB, shape (H, W, 3), row 0 at the top, in the format of the suffix.
+
+    ``metadata`` (JSON-serialisable) is stored in the file where the format allows it: a PNG
+    text chunk or an EXR header attribute, both named ``tilerender``.
+    """
+    path = check_output_path(path)
+    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
+    text = json.dumps(metadata or {}, sort_keys=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        suffix = path.suffix.lower()
+        if suffix == ".npy":
+            with open(tmp, "wb") as f:
+                np.save(f, rgb)
+        elif suffix == ".png":
+            from PIL import Image, PngImagePlugin
+
+            info = PngImagePlugin.PngInfo()
+            info.add_text("tilerender", text)
+            Image.fromarray(linear_to_srgb8(rgb), mode="RGB").save(tmp, format="PNG", pnginfo=info)
+        else:
+            import OpenEXR
+
+            header = {
+                "compression": OpenEXR.ZIP_COMPRESSION,
+                "type": OpenEXR.scanlineimage,
+                "tilerender": text,
+            }
+            OpenEXR.File(header, {"RGB": rgb}).write(str(tmp))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image written by :func:`write_image` as float32 (H, W, 3) (PNG stays sRGB/255)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        return np.load(path)
+    if suffix == ".exr":
+        import OpenEXR
+
+        with OpenEXR.File(str(path)) as f:
+            return np.array(f.channels()["RGB"].pixels, dtype=np.float32)
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
