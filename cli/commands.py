@@ -30,6 +30,9 @@ def run(args: argparse.Namespace) -> int:
             return cmd_render(args)
         if args.command == "samples":
             return cmd_samples(args)
+        if args.command == "schema":
+            print(scene_schema_json())
+            return 0
         return cmd_info(args)
     except BrokenPipeError:
         raise
@@ -176,6 +179,11 @@ def cmd_samples(args: argparse.Namespace) -> int:
     if not args.quiet:
         stderr.print(f"{len(scenes)} sample scenes rendered into {out}/")
     return 0
+
+
+def scene_schema_json() -> str:
+    """The JSON Schema of scene files, as committed in docs/scene-schema.json."""
+    return json.dumps(fmt.SceneFile.model_json_schema(), indent=2, sort_keys=True)
 
 
 def cmd_info(args: argparse.Namespace) -> int:

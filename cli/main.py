@@ -24,7 +24,8 @@ examples:
   tilerender render scenes/cornell-box/scene.json -o cornell.exr --spp 256 --seed 7
   tilerender render model.glb -o model.png --width 800 --height 600
   tilerender samples --out renders
-  tilerender info scenes/cornell-box/scene.json"""
+  tilerender info scenes/cornell-box/scene.json
+  tilerender schema > scene-schema.json"""
 
 
 class UsageError(Exception):
@@ -93,6 +94,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     info = sub.add_parser("info", help="describe a scene: geometry, materials, lights, camera")
     info.add_argument("scene", metavar="SCENE")
+
+    sub.add_parser(
+        "schema",
+        help="print the JSON Schema of scene files",
+        description="Print the JSON Schema of tilerender/1 scene files (docs/scene-schema.json).",
+    )
     return parser
 
 

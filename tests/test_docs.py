@@ -1,0 +1,26 @@
+"""The committed documentation artefacts match the code."""
+
+import json
+from pathlib import Path
+
+from cli.commands import scene_schema_json
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_scene_schema_is_current():
+    """docs/scene-schema.json is what `tilerender schema` prints (regenerate it if not)."""
+    committed = (ROOT / "docs" / "scene-schema.json").read_text()
+    assert json.loads(committed) == json.loads(scene_schema_json()), (
+        "run: tilerender schema > docs/scene-schema.json"
+    )
+
+
+def test_sample_scenes_follow_the_schema():
+    """Every sample scene.json validates against the exported schema's model."""
+    from tracer.scene_format import SceneFile
+
+    scenes = sorted((ROOT / "scenes").glob("*/scene.json"))
+    assert len(scenes) >= 3
+    for path in scenes:
+        SceneFile.model_validate_json(path.read_text())
