@@ -10,19 +10,27 @@ import numpy as np
 
 from tracer import config
 from tracer.bvh import TraversalBVH
-from tracer.intersect import intersect, occluded
+from tracer.intersect import (
+    geometric_normal,
+    hit_point,
+    intersect,
+    occluded,
+    offset_ray_origin,
+)
 from tracer.jit import jit
 from tracer.threads import run_parts
 
 
 class Hits(NamedTuple):
     """Closest hits: ``prim`` original triangle index (-1 for a miss), ``t`` distance (inf for a
-    miss), barycentrics ``b`` (M, 3) of the hit, and ``cost`` node visits plus triangle tests."""
+    miss), barycentrics ``b`` (N, 3) of the hit, ``cost`` node visits plus triangle tests, and
+    ``tri`` the hit's row in the BVH's leaf-ordered triangle arrays (-1 for a miss)."""
 
     prim: np.ndarray
     t: np.ndarray
     b: np.ndarray
     cost: np.ndarray
+    tri: np.ndarray
 
 
 @jit
@@ -41,6 +49,7 @@ def _closest(
     t_out,
     bary,
     cost,
+    tri,
 ):
     stack_node = np.empty(stack_size, np.int32)
     stack_t = np.empty(stack_size, np.float64)
@@ -52,6 +61,7 @@ def _closest(
         )
         cost[i] = c
         if j >= 0:
+            tri[i] = j
             prim[i] = tri_prim[j]
             t_out[i] = t
             bary[i, 0] = b0
@@ -107,7 +117,11 @@ def closest_hits(
     origins, directions, t_max = _check_rays(origins, directions, t_max)
     n = origins.shape[0]
     hits = Hits(
-        np.full(n, -1, np.int32), np.full(n, np.inf), np.zeros((n, 3)), np.zeros(n, np.int64)
+        np.full(n, -1, np.int32),
+        np.full(n, np.inf),
+        np.zeros((n, 3)),
+        np.zeros(n, np.int64),
+        np.full(n, -1, np.int32),
     )
     args = (
         bvh.node_bounds,
@@ -144,3 +158,43 @@ def any_hits(
     )
     run_parts(lambda part, parts: _any(*args, part, parts, hit), threads)
     return hit
+
+
+@jit
+def _surface(tri_verts, tri, bary, directions, points, errors, normals, origins):
+    for i in range(tri.shape[0]):
+        j = tri[i]
+        if j < 0:
+            continue
+        p, err = hit_point(tri_verts, j, bary[i, 0], bary[i, 1], bary[i, 2])
+        n, _ = geometric_normal(tri_verts, j)
+        w = (directions[i, 0], directions[i, 1], directions[i, 2])
+        o = offset_ray_origin(p, err, n, w)
+        for c in range(3):
+            points[i, c] = p[c]
+            errors[i, c] = err[c]
+            normals[i, c] = n[c]
+            origins[i, c] = o[c]
+
+
+class Surface(NamedTuple):
+    """Where rays hit: ``point``, its conservative absolute ``error`` per axis, the unit
+    geometric ``normal`` (counter-clockwise front), and ``origin``, the start of a ray leaving
+    the point in the given direction, offset past the error (NaN rows for misses)."""
+
+    point: np.ndarray
+    error: np.ndarray
+    normal: np.ndarray
+    origin: np.ndarray
+
+
+def surface(bvh: TraversalBVH, hits: Hits, directions: np.ndarray) -> Surface:
+    """Hit points of ``hits`` and origins for rays leaving them along ``directions`` (N, 3).
+
+    This is exactly how the path tracer spawns secondary and shadow rays.
+    """
+    n = hits.tri.shape[0]
+    directions = np.ascontiguousarray(np.broadcast_to(directions, (n, 3)), dtype=np.float64)
+    out = Surface(*(np.full((n, 3), np.nan) for _ in range(4)))
+    _surface(bvh.tri_verts, hits.tri, hits.b, directions, *out)
+    return out
