@@ -10,6 +10,7 @@ emitters seen directly, 2 is direct lighting, 8 allows up to seven bounces.
 
 import numpy as np
 
+from tracer.borrow import borrowed
 from tracer.bsdf import diffuse_eval, diffuse_pdf, diffuse_sample
 from tracer.camera import primary_ray
 from tracer.intersect import geometric_normal, hit_point, intersect, occluded, offset_ray_origin
@@ -18,6 +19,9 @@ from tracer.lights import emission_mean, sample_emitter
 from tracer.rng import pixel_key, sample_key, uniform, uniform2
 from tracer.sampling import power_heuristic
 from tracer.vecmath import dot, max_component, sub
+
+PIXEL_BLOCK = 32
+"""Consecutive pixels a thread renders before skipping to its next block."""
 
 DIMS_PER_VERTEX = 8
 """Random dimensions reserved per path vertex: light choice (+0), light point (+1, two 32-bit
@@ -174,59 +178,77 @@ def render_pixels(
     seed,
     frame,
     shadow_t_max,
-    stack_size,
     first,
     stride,
+    stack_node,
+    stack_t,
     out_rgb,
     out_cost,
 ):
-    """Render pixels ``first, first + stride, ...`` of lines [y0, y1).
+    """Render pixel blocks ``first, first + stride, ...`` of lines [y0, y1).
 
     ``out_rgb`` float32 (y1-y0, W, 3) gets the mean of samples [sample_start, sample_start + spp)
     of each pixel, ``out_cost`` int64 (y1-y0, W) the work spent on it. Threads call this with the
-    same stride and different ``first``: interleaved pixels balance lines of very different cost.
+    same stride and different ``first``: interleaved blocks of ``PIXEL_BLOCK`` pixels balance lines
+    of very different cost, and keep threads off each other's cache lines. ``stack_node`` (int32)
+    and ``stack_t`` (float64) are this thread's traversal stacks.
+
+    Every array is borrowed (:mod:`tracer.borrow`) before the loops, so the inlined path code
+    passes them around without atomic reference counting.
     """
-    stack_node = np.empty(stack_size, np.int32)
-    stack_t = np.empty(stack_size, np.float64)
+    node_bounds = borrowed(node_bounds)
+    node_child = borrowed(node_child)
+    tri_verts = borrowed(tri_verts)
+    tri_material = borrowed(tri_material)
+    mat_albedo = borrowed(mat_albedo)
+    mat_emission = borrowed(mat_emission)
+    mat_two_sided = borrowed(mat_two_sided)
+    light_tri = borrowed(light_tri)
+    light_cdf = borrowed(light_cdf)
+    light_total = borrowed(light_total)
+    camera = borrowed(camera)
+    stack_node = borrowed(stack_node)
+    stack_t = borrowed(stack_t)
     n_pix = (y1 - y0) * width
-    for i in range(first, n_pix, stride):
-        row = i // width
-        x = i - row * width
-        y = y0 + row
-        p_key = pixel_key(seed, frame, y * width + x)
-        acc0 = 0.0
-        acc1 = 0.0
-        acc2 = 0.0
-        cost = 0
-        for s in range(sample_start, sample_start + spp):
-            key = sample_key(p_key, s)
-            jx, jy = uniform2(key, 0)
-            o, d = primary_ray(camera, width, height, x + jx, y + jy)
-            L, c = trace_path(
-                node_bounds,
-                node_child,
-                tri_verts,
-                tri_material,
-                mat_albedo,
-                mat_emission,
-                mat_two_sided,
-                light_tri,
-                light_cdf,
-                light_total,
-                o,
-                d,
-                key,
-                max_depth,
-                rr_depth,
-                shadow_t_max,
-                stack_node,
-                stack_t,
-            )
-            acc0 += L[0]
-            acc1 += L[1]
-            acc2 += L[2]
-            cost += c
-        out_rgb[row, x, 0] = acc0 / spp
-        out_rgb[row, x, 1] = acc1 / spp
-        out_rgb[row, x, 2] = acc2 / spp
-        out_cost[row, x] = cost
+    for block in range(first, (n_pix + PIXEL_BLOCK - 1) // PIXEL_BLOCK, stride):
+        for i in range(block * PIXEL_BLOCK, min(n_pix, (block + 1) * PIXEL_BLOCK)):
+            row = i // width
+            x = i - row * width
+            y = y0 + row
+            p_key = pixel_key(seed, frame, y * width + x)
+            acc0 = 0.0
+            acc1 = 0.0
+            acc2 = 0.0
+            cost = 0
+            for s in range(sample_start, sample_start + spp):
+                key = sample_key(p_key, s)
+                jx, jy = uniform2(key, 0)
+                o, d = primary_ray(camera, width, height, x + jx, y + jy)
+                L, c = trace_path(
+                    node_bounds,
+                    node_child,
+                    tri_verts,
+                    tri_material,
+                    mat_albedo,
+                    mat_emission,
+                    mat_two_sided,
+                    light_tri,
+                    light_cdf,
+                    light_total,
+                    o,
+                    d,
+                    key,
+                    max_depth,
+                    rr_depth,
+                    shadow_t_max,
+                    stack_node,
+                    stack_t,
+                )
+                acc0 += L[0]
+                acc1 += L[1]
+                acc2 += L[2]
+                cost += c
+            out_rgb[row, x, 0] = acc0 / spp
+            out_rgb[row, x, 1] = acc1 / spp
+            out_rgb[row, x, 2] = acc2 / spp
+            out_cost[row, x] = cost

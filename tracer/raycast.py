@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from tracer import config
+from tracer.borrow import borrowed
 from tracer.bvh import TraversalBVH
 from tracer.intersect import (
     geometric_normal,
@@ -19,6 +20,9 @@ from tracer.intersect import (
 )
 from tracer.jit import jit
 from tracer.threads import run_parts
+
+RAY_BLOCK = 256
+"""Consecutive rays a thread takes before skipping to its next block (no false sharing)."""
 
 
 class Hits(NamedTuple):
@@ -42,43 +46,60 @@ def _closest(
     origins,
     directions,
     t_max,
-    stack_size,
     first,
     stride,
+    stack_node,
+    stack_t,
     prim,
     t_out,
     bary,
     cost,
     tri,
 ):
-    stack_node = np.empty(stack_size, np.int32)
-    stack_t = np.empty(stack_size, np.float64)
-    for i in range(first, origins.shape[0], stride):
-        o = (origins[i, 0], origins[i, 1], origins[i, 2])
-        d = (directions[i, 0], directions[i, 1], directions[i, 2])
-        j, t, b0, b1, b2, c = intersect(
-            node_bounds, node_child, tri_verts, o, d, t_max[i], stack_node, stack_t
-        )
-        cost[i] = c
-        if j >= 0:
-            tri[i] = j
-            prim[i] = tri_prim[j]
-            t_out[i] = t
-            bary[i, 0] = b0
-            bary[i, 1] = b1
-            bary[i, 2] = b2
+    node_bounds = borrowed(node_bounds)
+    node_child = borrowed(node_child)
+    tri_verts = borrowed(tri_verts)
+    stack_node = borrowed(stack_node)
+    stack_t = borrowed(stack_t)
+    n = origins.shape[0]
+    for block in range(first, (n + RAY_BLOCK - 1) // RAY_BLOCK, stride):
+        for i in range(block * RAY_BLOCK, min(n, (block + 1) * RAY_BLOCK)):
+            o = (origins[i, 0], origins[i, 1], origins[i, 2])
+            d = (directions[i, 0], directions[i, 1], directions[i, 2])
+            j, t, b0, b1, b2, c = intersect(
+                node_bounds, node_child, tri_verts, o, d, t_max[i], stack_node, stack_t
+            )
+            cost[i] = c
+            if j >= 0:
+                tri[i] = j
+                prim[i] = tri_prim[j]
+                t_out[i] = t
+                bary[i, 0] = b0
+                bary[i, 1] = b1
+                bary[i, 2] = b2
 
 
 @jit
 def _any(
-    node_bounds, node_child, tri_verts, origins, directions, t_max, stack_size, first, stride, hit
+    node_bounds, node_child, tri_verts, origins, directions, t_max, first, stride, stack_node, hit
 ):
-    stack_node = np.empty(stack_size, np.int32)
-    for i in range(first, origins.shape[0], stride):
-        o = (origins[i, 0], origins[i, 1], origins[i, 2])
-        d = (directions[i, 0], directions[i, 1], directions[i, 2])
-        h, _ = occluded(node_bounds, node_child, tri_verts, o, d, t_max[i], stack_node)
-        hit[i] = h
+    node_bounds = borrowed(node_bounds)
+    node_child = borrowed(node_child)
+    tri_verts = borrowed(tri_verts)
+    stack_node = borrowed(stack_node)
+    n = origins.shape[0]
+    for block in range(first, (n + RAY_BLOCK - 1) // RAY_BLOCK, stride):
+        for i in range(block * RAY_BLOCK, min(n, (block + 1) * RAY_BLOCK)):
+            o = (origins[i, 0], origins[i, 1], origins[i, 2])
+            d = (directions[i, 0], directions[i, 1], directions[i, 2])
+            h, _ = occluded(node_bounds, node_child, tri_verts, o, d, t_max[i], stack_node)
+            hit[i] = h
+
+
+def _stacks() -> tuple[np.ndarray, np.ndarray]:
+    """One thread's traversal stacks (node indices, entry distances)."""
+    size = config.TRAVERSAL_STACK_SIZE
+    return np.empty(size, np.int32), np.empty(size, np.float64)
 
 
 def _check_rays(origins, directions, t_max):
@@ -131,9 +152,8 @@ def closest_hits(
         origins,
         directions,
         t_max,
-        config.TRAVERSAL_STACK_SIZE,
     )
-    run_parts(lambda part, parts: _closest(*args, part, parts, *hits), threads)
+    run_parts(lambda part, parts: _closest(*args, part, parts, *_stacks(), *hits), threads)
     return hits
 
 
@@ -154,9 +174,8 @@ def any_hits(
         origins,
         directions,
         t_max,
-        config.TRAVERSAL_STACK_SIZE,
     )
-    run_parts(lambda part, parts: _any(*args, part, parts, hit), threads)
+    run_parts(lambda part, parts: _any(*args, part, parts, _stacks()[0], hit), threads)
     return hit
 
 

@@ -88,9 +88,14 @@ def render_lines(
         settings.seed,
         frame,
         1.0 - config.SHADOW_EPSILON,
-        config.TRAVERSAL_STACK_SIZE,
     )
-    run_parts(lambda part, parts: render_pixels(*args, part, parts, rgb, cost), threads)
+
+    def work(part: int, parts: int) -> None:
+        stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
+        stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
+        render_pixels(*args, part, parts, stack_node, stack_t, rgb, cost)
+
+    run_parts(work, threads)
     seconds = time.perf_counter() - start
     return RenderedLines(y0, y1, rgb, cost.sum(axis=1), settings.spp, seconds)
 
