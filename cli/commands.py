@@ -130,7 +130,7 @@ def tracer_version() -> str:
 
 def cmd_render(args: argparse.Namespace) -> int:
     output = check_output_path(args.output)
-    if not output.parent.exists():
+    if not output.parent.is_dir():
         raise UsageError(f"{output.parent}: output directory does not exist")
     scene = load(args.scene)
     camera, settings = settings_for(scene, args)

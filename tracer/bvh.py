@@ -283,6 +283,20 @@ def _build(tri_verts, prims, n_bins, max_leaf, c_trav, c_isect, max_depth):
     )
 
 
+@jit
+def tree_depth(left_first, count):
+    """Depth of a canonical tree (the root alone has depth 0); children follow their parent."""
+    n = count.shape[0]
+    depth = np.zeros(n, np.int64)
+    deepest = 0
+    for node in range(n):
+        if count[node] == 0 and n > 1:
+            depth[left_first[node]] = depth[node] + 1
+            depth[left_first[node] + 1] = depth[node] + 1
+        deepest = max(deepest, depth[node])
+    return deepest
+
+
 def build(tri_verts: np.ndarray, prims: np.ndarray | None = None) -> CanonicalBVH:
     """Build a canonical BVH over the triangles ``prims`` of ``tri_verts``.
 
@@ -315,6 +329,8 @@ def build(tri_verts: np.ndarray, prims: np.ndarray | None = None) -> CanonicalBV
         )
     )
     leaves = result.count > 0
+    if tree_depth(result.left_first, result.count) + 1 > config.TRAVERSAL_STACK_SIZE:
+        raise AssertionError("BVH deeper than the traversal stack allows")
     if int(result.count.sum()) != prims.shape[0]:
         raise AssertionError("BVH leaves do not cover every triangle exactly once")
     if prims.shape[0] and int(leaves.sum()) * 2 - 1 != result.count.shape[0]:

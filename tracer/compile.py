@@ -80,17 +80,23 @@ def render_space_origin(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 def zero_area_mask(tri_verts: np.ndarray) -> np.ndarray:
     """Triangles whose float32 vertices are exactly collinear (or repeated).
 
-    Float64 screens out the clearly non-degenerate; candidates are decided exactly with
-    rational arithmetic on the float32 values.
+    Triangles with a repeated vertex are degenerate outright. For the rest, float64 screens out
+    the clearly non-degenerate (a cross product far from zero), and every remaining candidate is
+    decided exactly, with rational arithmetic on the float32 values: float64 alone is not exact
+    when one triangle mixes tiny and ordinary coordinates.
     """
     v = tri_verts.astype(np.float64).reshape(-1, 3, 3)
+    repeated = (
+        np.all(v[:, 0] == v[:, 1], axis=1)
+        | np.all(v[:, 1] == v[:, 2], axis=1)
+        | np.all(v[:, 2] == v[:, 0], axis=1)
+    )
     e1 = v[:, 1] - v[:, 0]
     e2 = v[:, 2] - v[:, 0]
-    cross = np.cross(e1, e2)
-    size = np.abs(cross).max(axis=1)
+    size = np.abs(np.cross(e1, e2)).max(axis=1)
     scale = np.abs(e1).max(axis=1) * np.abs(e2).max(axis=1)
-    mask = size == 0.0
-    for i in np.flatnonzero((size <= 1e-9 * scale) & ~mask):
+    mask = repeated.copy()
+    for i in np.flatnonzero((size <= 1e-9 * scale) & ~repeated):
         p = [[Fraction(float(x)) for x in vertex] for vertex in tri_verts[i].reshape(3, 3)]
         a = [p[1][k] - p[0][k] for k in range(3)]
         b = [p[2][k] - p[0][k] for k in range(3)]

@@ -14,9 +14,10 @@ BVH_INTERSECT_COST = 1.0
 BVH_MAX_BUILD_DEPTH = 48
 """Below this depth the builder stops trusting SAH and splits at the index median, which bounds
 the tree depth (and the traversal stack) for adversarial inputs such as collinear centroids."""
-TRAVERSAL_STACK_SIZE = 64
-"""Entries on a traversal stack. Ordered traversal pushes at most one node per level, and the
-builder keeps the depth below ``BVH_MAX_BUILD_DEPTH + log2(triangles)``, so 64 always suffices."""
+TRAVERSAL_STACK_SIZE = 96
+"""Entries on a traversal stack. A traversal holds at most one entry per tree level plus one,
+and the builder keeps the depth at most ``BVH_MAX_BUILD_DEPTH`` + 28 (index-median splits below
+that depth, at most 2**28 triangles): 77. ``bvh.build`` checks the bound on every tree."""
 
 # --- Rays ------------------------------------------------------------------------------------
 SHADOW_EPSILON = 1e-9

@@ -143,12 +143,15 @@ def intersect_triangle(tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_ma
     inv_det = 1.0 / det
     t = t_scaled * inv_det
     # Reject hits within the error bound of t = 0 (pbrt-v4, Triangle::Intersect).
+    # x and y were sheared with the unscaled z (|sx|, |sy| <= 1), so their error bounds use it;
+    # the scaled z (in units of t) enters only through delta_z.
     max_zt = max(abs(az), max(abs(bz), abs(cz)))
+    max_z = max(abs(az_), max(abs(bz_), abs(cz_)))
     max_xt = max(abs(ax), max(abs(bx), abs(cx)))
     max_yt = max(abs(ay), max(abs(by), abs(cy)))
     delta_z = GAMMA3 * max_zt
-    delta_x = GAMMA5 * (max_xt + max_zt)
-    delta_y = GAMMA5 * (max_yt + max_zt)
+    delta_x = GAMMA5 * (max_xt + max_z)
+    delta_y = GAMMA5 * (max_yt + max_z)
     delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt)
     max_e = max(abs(u), max(abs(v), abs(w)))
     delta_t = 3.0 * (GAMMA3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * abs(inv_det)

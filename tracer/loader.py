@@ -53,7 +53,8 @@ def format_validation_error(error: pydantic.ValidationError) -> str:
     """One line naming the first problem (and how many more there are)."""
     errors = error.errors()
     first = errors[0]
-    where = ".".join(str(p) for p in first["loc"]) or "scene"
+    parts = [str(p) for p in first["loc"] if not str(p).startswith(("tagged-union[", "function-"))]
+    where = ".".join(parts) or "scene"
     message = first["msg"]
     if first["type"] == "extra_forbidden":
         message = "unknown key"
@@ -64,6 +65,8 @@ def format_validation_error(error: pydantic.ValidationError) -> str:
 def resolve_reference(scene_dir: Path, reference: str) -> Path:
     """The file ``reference`` names, which must lie inside ``scene_dir``."""
     ref = Path(reference)
+    if not ref.parts:
+        raise SceneError(f"{reference!r}: not a file name")
     if ref.is_absolute() or reference.startswith(("/", "\\")) or ":" in ref.parts[0]:
         raise SceneError(f"{reference}: file references must be relative to the scene file")
     base = scene_dir.resolve()
@@ -111,10 +114,12 @@ def load_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 def transform_mesh(vertices: np.ndarray, faces: np.ndarray, matrix: np.ndarray):
     """Apply an affine 4x4 matrix; a mirroring transform reverses winding to keep front faces."""
-    world = vertices @ matrix[:3, :3].T + matrix[:3, 3]
+    with np.errstate(all="ignore"):  # overflow is reported below, as an error
+        world = vertices @ matrix[:3, :3].T + matrix[:3, 3]
+        mirrored = np.linalg.det(matrix[:3, :3]) < 0.0
     if not np.isfinite(world).all():
         raise SceneError("a transform moves vertices to infinity")
-    if np.linalg.det(matrix[:3, :3]) < 0.0:
+    if mirrored:
         faces = faces[:, ::-1]
     return world, faces
 
@@ -135,9 +140,15 @@ def load_scene(path: str | Path) -> SceneData:
     if path.stat().st_size > MAX_SCENE_FILE_BYTES:
         raise SceneError(f"{path}: scene file larger than {MAX_SCENE_FILE_BYTES} bytes")
     try:
-        raw = json.loads(path.read_text(encoding="utf-8"), parse_constant=_reject_constant)
+        raw = json.loads(
+            path.read_text(encoding="utf-8"),
+            parse_constant=_reject_constant,
+            object_pairs_hook=_reject_duplicate_keys,
+        )
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise SceneError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise SceneError(f"{path}: JSON nested too deeply") from None
     except ValueError as exc:
         raise SceneError(f"{path}: {exc}") from None
     try:
@@ -149,6 +160,15 @@ def load_scene(path: str | Path) -> SceneData:
 
 def _reject_constant(name: str):
     raise ValueError(f"non-finite number {name} is not allowed")
+
+
+def _reject_duplicate_keys(pairs: list[tuple[str, object]]) -> dict:
+    result = {}
+    for key, value in pairs:
+        if key in result:
+            raise ValueError(f"duplicate key {key!r}")
+        result[key] = value
+    return result
 
 
 def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "") -> SceneData:

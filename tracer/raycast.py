@@ -103,8 +103,9 @@ def _stacks() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_rays(origins, directions, t_max):
-    origins = np.ascontiguousarray(origins, dtype=np.float64)
-    directions = np.ascontiguousarray(directions, dtype=np.float64)
+    # Contiguous and writeable: a read-only array would make numba compile another kernel.
+    origins = np.require(origins, np.float64, ["C", "W"])
+    directions = np.require(directions, np.float64, ["C", "W"])
     if origins.ndim != 2 or origins.shape[1] != 3 or directions.shape != origins.shape:
         raise ValueError("origins and directions must both have shape (N, 3)")
     if not (np.isfinite(origins).all() and np.isfinite(directions).all()):
@@ -113,7 +114,7 @@ def _check_rays(origins, directions, t_max):
         raise ValueError("ray directions must be non-zero")
     if t_max is None:
         t_max = np.full(origins.shape[0], np.inf)
-    t_max = np.ascontiguousarray(np.broadcast_to(t_max, (origins.shape[0],)), dtype=np.float64)
+    t_max = np.array(np.broadcast_to(t_max, (origins.shape[0],)), dtype=np.float64)  # writeable
     if np.isnan(t_max).any():
         raise ValueError("t_max must not be NaN")
     return origins, directions, t_max
@@ -213,7 +214,7 @@ def surface(bvh: TraversalBVH, hits: Hits, directions: np.ndarray) -> Surface:
     This is exactly how the path tracer spawns secondary and shadow rays.
     """
     n = hits.tri.shape[0]
-    directions = np.ascontiguousarray(np.broadcast_to(directions, (n, 3)), dtype=np.float64)
+    directions = np.array(np.broadcast_to(directions, (n, 3)), dtype=np.float64)  # writeable
     out = Surface(*(np.full((n, 3), np.nan) for _ in range(4)))
     _surface(bvh.tri_verts, hits.tri, hits.b, directions, *out)
     return out

@@ -47,9 +47,10 @@ class Transform(Strict):
         ):
             raise ValueError("give either matrix or translate/rotate/scale, not both")
         m = self.to_matrix()
-        if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=0.0):
+        if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
             raise ValueError("matrix must be affine: its last row must be [0, 0, 0, 1]")
-        det = np.linalg.det(m[:3, :3])
+        with np.errstate(all="ignore"):  # an overflowing determinant is refused just below
+            det = np.linalg.det(m[:3, :3])
         if not np.isfinite(det) or det == 0.0:
             raise ValueError("transform is singular (zero scale or a degenerate matrix)")
         return self
@@ -72,7 +73,8 @@ class Transform(Strict):
         rot_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
         rot_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
         m = np.eye(4)
-        m[:3, :3] = rot_z @ rot_y @ rot_x @ np.diag(scale)
+        with np.errstate(all="ignore"):  # huge scales overflow to inf: refused as singular
+            m[:3, :3] = rot_z @ rot_y @ rot_x @ np.diag(scale)
         m[:3, 3] = self.translate
         return m
 
@@ -178,7 +180,10 @@ class RenderSettings(Strict):
         description="Path vertices after the camera: 1 = emitters only, 2 = direct light",
     )
     rr_depth: int = Field(
-        default=5, ge=1, description="Russian roulette starts at paths of this many vertices"
+        default=5,
+        ge=1,
+        le=config.MAX_DEPTH,
+        description="Russian roulette starts at paths of this many vertices",
     )
     seed: int = Field(default=0, ge=0, lt=2**63)
 

@@ -1,0 +1,350 @@
+"""The ``tilerender`` command line: renders what the library renders, describes scenes, and
+turns every bad input into exit code 2 with one line on stderr and no output file."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cli import main as cli_main
+from tests.helpers import GLTF_BOX, ROOT, tiny_scene, write_json
+from tracer import config
+from tracer.compile import compile_scene
+from tracer.image_io import read_image
+from tracer.loader import load_scene
+from tracer.render import render_image
+from tracer.scene_format import override
+
+TILERENDER = Path(sys.executable).with_name("tilerender")
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    """Run ``tilerender argv`` in-process; returns (exit code, stdout, stderr)."""
+    code = cli_main.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_usage_error(code: int, err: str, *words: str) -> None:
+    """Exit code 2 and exactly one non-empty stderr line, starting "error:", no traceback."""
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2, err
+    assert len(lines) == 1, f"expected one line on stderr, got: {err!r}"
+    assert lines[0].startswith("error:") and "Traceback" not in err
+    for word in words:
+        assert word in lines[0], f"{word!r} not in {lines[0]!r}"
+
+
+# --- rendering ------------------------------------------------------------------------------
+
+
+OVERRIDES = ["--width", 10, "--height", 6, "--spp", 3, "--seed", 5, "--max-depth", 3]
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_render_npy_equals_the_library(capsys, tmp_path, tiny_scene_file, threads):
+    """`render -o x.npy` with overrides writes exactly render_image of the scene with those
+    overrides applied (every bit), on any number of threads."""
+    out = tmp_path / "out.npy"
+    code, _, err = run(
+        capsys, "render", tiny_scene_file, "-o", out, *OVERRIDES, "--threads", threads, "-q"
+    )
+    assert code == 0, err
+    assert err == ""
+    scene = compile_scene(load_scene(tiny_scene_file))
+    camera = override(scene.camera, width=10, height=6)
+    settings = override(scene.render, spp=3, seed=5, max_depth=3)
+    expected, _ = render_image(scene, camera, settings)
+    got = read_image(out)
+    assert got.dtype == np.float32 and got.shape == (6, 10, 3)
+    assert np.array_equal(got, expected)
+    assert got.max() > 0
+
+
+def test_render_overrides_change_the_image(capsys, tmp_path, tiny_scene_file):
+    """--seed and --max-depth reach the renderer: each changes the image."""
+    images = {}
+    for name, extra in [("base", []), ("seed", ["--seed", 99]), ("depth", ["--max-depth", 1])]:
+        out = tmp_path / f"{name}.npy"
+        code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--spp", 2, "-q", *extra)
+        assert code == 0, err
+        images[name] = read_image(out)
+    assert not np.array_equal(images["base"], images["seed"])
+    # max_depth 1 shows only emitters seen directly: a darker image.
+    assert images["depth"].sum() < images["base"].sum()
+
+
+@pytest.mark.parametrize("suffix", [".png", ".exr"])
+def test_render_png_and_exr(capsys, tmp_path, tiny_scene_file, suffix):
+    """PNG and EXR outputs have the requested size and carry the settings as metadata; the
+    progress summary goes to stderr unless -q."""
+    out = tmp_path / f"out{suffix}"
+    code, stdout, err = run(
+        capsys, "render", tiny_scene_file, "-o", out, "--width", 9, "--height", 5, "--spp", 1
+    )
+    assert code == 0, err
+    assert stdout == ""
+    assert "wrote" in err and "9x5" in err
+    assert read_image(out).shape == (5, 9, 3)
+    if suffix == ".png":
+        with Image.open(out) as image:
+            metadata = json.loads(image.text["tilerender"])
+        assert metadata["camera"]["width"] == 9 and metadata["render"]["spp"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out" + suffix, "scene.json"]
+
+
+def test_render_mesh_file_alone(capsys, tmp_path):
+    """A glTF file alone renders (framing camera, default light) to a non-black image."""
+    out = tmp_path / "box.npy"
+    code, _, err = run(
+        capsys, "render", GLTF_BOX, "-o", out, "--width", 16, "--height", 12, "--spp", 2, "-q"
+    )
+    assert code == 0, err
+    rgb = read_image(out)
+    assert rgb.shape == (12, 16, 3) and rgb.mean() > 0.01
+
+
+def test_interrupted_render_writes_nothing(capsys, tmp_path, tiny_scene_file, monkeypatch):
+    """Ctrl-C during a render exits with 130 and one line, and writes no file."""
+    from cli import commands
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(commands, "render_image", interrupt)
+    out = tmp_path / "out.png"
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--spp", 1, "-q")
+    assert code == 130
+    assert err.strip().splitlines() == ["interrupted; nothing written"]
+    assert not out.exists()
+
+
+# --- info, help, schema ---------------------------------------------------------------------
+
+
+def test_info_prints_json(capsys, tiny_scene_file):
+    """`info` prints one JSON document describing the compiled scene."""
+    code, out, err = run(capsys, "info", tiny_scene_file)
+    assert code == 0, err
+    report = json.loads(out)
+    scene = compile_scene(load_scene(tiny_scene_file))
+    assert report["triangles"] == scene.stats.triangles == 16
+    assert report["emissive_triangles"] == 2
+    assert report["zero_area_triangles_dropped"] == 0
+    assert report["materials"] == ["grey", "lamp"]
+    assert report["camera"]["width"] == 12 and report["render"]["spp"] == 2
+    assert report["bvh_nodes"] == scene.bvh.node_bounds.shape[0]
+    assert report["bounds"]["min"] == list(scene.stats.bounds_min)
+
+
+def test_info_counts_dropped_triangles(capsys, tmp_path):
+    """`info` reports zero-area triangles the compiler dropped."""
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n")
+    code, out, err = run(capsys, "info", tmp_path / "m.obj")
+    assert code == 0, err
+    assert json.loads(out)["zero_area_triangles_dropped"] == 1
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["render", "--help"], ["samples", "--help"]])
+def test_help(capsys, argv):
+    """--help prints usage to stdout and exits 0."""
+    with pytest.raises(SystemExit) as info:
+        cli_main.main(argv)
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    assert "usage: tilerender" in out
+    if argv == ["--help"]:
+        assert all(word in out for word in ("render", "samples", "info", "schema"))
+    if argv[0] == "render":
+        assert all(f"--{o}" in out for o in ("spp", "width", "height", "seed", "max-depth"))
+
+
+def test_schema_is_json(capsys):
+    """`schema` prints the scene file's JSON Schema."""
+    code, out, _ = run(capsys, "schema")
+    assert code == 0
+    schema = json.loads(out)
+    assert "camera" in schema["properties"] and "objects" in schema["required"]
+
+
+# --- bad input ------------------------------------------------------------------------------
+
+
+BIG = config.MAX_IMAGE_SIDE + 1
+OUT = "{tmp}/out.png"
+BAD_INPUT = {
+    # name: (argv with {tmp} and {scene} placeholders, words the error line must contain)
+    "missing scene": (["render", "{tmp}/nope.json", "-o", OUT], ["nope.json"]),
+    "bad json": (["render", "{tmp}/bad.json", "-o", OUT], ["not valid JSON"]),
+    "unknown key": (["render", "{tmp}/unknown.json", "-o", OUT], ["lights", "unknown key"]),
+    "spp 0": (["render", "{scene}", "-o", OUT, "--spp", "0"], ["--spp", "at least 1"]),
+    "spp abc": (["render", "{scene}", "-o", OUT, "--spp", "abc"], ["--spp", "'abc'"]),
+    "spp negative": (["render", "{scene}", "-o", OUT, "--spp", "-3"], ["--spp"]),
+    "spp too many": (["render", "{scene}", "-o", OUT, "--spp", str(config.MAX_SPP + 1)], ["spp"]),
+    "width 0": (["render", "{scene}", "-o", OUT, "--width", "0"], ["--width"]),
+    "width above max": (["render", "{scene}", "-o", OUT, "--width", str(BIG)], ["width", "16384"]),
+    "height above max": (["render", "{scene}", "-o", OUT, "--height", str(BIG)], ["height"]),
+    "too many pixels": (
+        ["render", "{scene}", "-o", OUT, "--width", "16384", "--height", "16384"],
+        ["pixels"],
+    ),
+    "seed negative": (["render", "{scene}", "-o", OUT, "--seed", "-1"], ["--seed"]),
+    "seed too big": (["render", "{scene}", "-o", OUT, "--seed", str(2**63)], ["seed"]),
+    "max-depth 0": (["render", "{scene}", "-o", OUT, "--max-depth", "0"], ["--max-depth"]),
+    "threads 0": (["render", "{scene}", "-o", OUT, "--threads", "0"], ["--threads"]),
+    "unknown extension": (["render", "{scene}", "-o", "{tmp}/out.jpg"], [".jpg", ".png"]),
+    "no extension": (["render", "{scene}", "-o", "{tmp}/out"], ["unknown image format"]),
+    "missing output dir": (
+        ["render", "{scene}", "-o", "{tmp}/none/out.png"],
+        ["does not exist"],
+    ),
+    "output is a directory": (["render", "{scene}", "-o", "{tmp}/dir.png"], ["directory"]),
+    "output parent is a file": (["render", "{scene}", "-o", "{tmp}/bad.json/out.png", "-q"], []),
+    "reference outside dir": (["render", "{tmp}/inner/escape.json", "-o", OUT], ["stolen.obj"]),
+    "no output option": (["render", "{scene}"], ["-o/--output"]),
+    "unknown option": (["render", "{scene}", "-o", OUT, "--fast"], ["--fast"]),
+    "unknown command": (["draw", "{scene}"], ["draw"]),
+    "no command": ([], ["required"]),
+    "info missing scene": (["info", "{tmp}/nope.json"], ["nope.json"]),
+    "info bad json": (["info", "{tmp}/bad.json"], ["not valid JSON"]),
+    "samples no dir": (["samples", "--scenes", "{tmp}/none", "--out", "{tmp}"], ["none"]),
+    "samples empty dir": (["samples", "--scenes", "{tmp}/inner", "--out", "{tmp}"], ["no sample"]),
+}
+
+
+@pytest.fixture
+def bad_files(tmp_path):
+    """The broken inputs BAD_INPUT refers to, in tmp_path."""
+    (tmp_path / "bad.json").write_text('{"camera": ')
+    write_json(tmp_path / "unknown.json", tiny_scene(lights=[]))
+    (tmp_path / "inner").mkdir()
+    data = tiny_scene()
+    data["objects"][1]["shape"] = "../stolen.obj"
+    (tmp_path / "stolen.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    write_json(tmp_path / "inner" / "escape.json", data)
+    (tmp_path / "dir.png").mkdir()
+    return tmp_path
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUT))
+def test_bad_input(capsys, bad_files, tiny_scene_file, case):
+    """Each bad input exits with 2 and one "error:" line on stderr, no traceback, and no
+    output file."""
+    template, words = BAD_INPUT[case]
+    argv = [a.format(tmp=bad_files, scene=tiny_scene_file) for a in template]
+    before = sorted(bad_files.rglob("*"))
+    code, out, err = run(capsys, *argv)
+    assert_usage_error(code, err, *words)
+    assert out == ""
+    assert sorted(bad_files.rglob("*")) == before, "something was written"
+
+
+def test_dot_reference_is_a_usage_error(capsys, tmp_path):
+    """A scene whose mesh path is "." is bad input: exit code 2, one line."""
+    data = tiny_scene()
+    data["objects"][1]["shape"] = "."
+    scene = write_json(tmp_path / "scene.json", data)
+    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "out.png")
+    assert_usage_error(code, err)
+
+
+def test_deeply_nested_json_is_a_usage_error(capsys, tmp_path):
+    """A scene file of 100,000 nested brackets is bad input: exit code 2, one line."""
+    scene = tmp_path / "scene.json"
+    scene.write_text("[" * 100_000 + "]" * 100_000)
+    code, _, err = run(capsys, "info", scene)
+    assert_usage_error(code, err, "JSON")
+
+
+@pytest.mark.slow  # numba spends ~20 s before it gives up typing the kernel
+def test_huge_rr_depth_is_refused_or_rendered(capsys, tmp_path):
+    """A scene with rr_depth = 2**64 either is refused as bad input or renders."""
+    data = tiny_scene()
+    data["render"]["rr_depth"] = 2**64
+    scene = write_json(tmp_path / "scene.json", data)
+    out = tmp_path / "out.npy"
+    code, _, err = run(capsys, "render", scene, "-o", out, "-q")
+    if code == 0:
+        assert out.exists()
+    else:
+        assert_usage_error(code, err, "rr_depth")
+
+
+# --- the real console script ----------------------------------------------------------------
+
+
+def script(*argv, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(TILERENDER), *map(str, argv)], capture_output=True, text=True, cwd=cwd, timeout=300
+    )
+
+
+@pytest.mark.skipif(not TILERENDER.exists(), reason="console script not installed")
+def test_console_script_exit_codes(tmp_path, tiny_scene_file):
+    """The installed `tilerender` exits 2 with one line for bad input and 0 for a render."""
+    result = script("render", tmp_path / "nope.json", "-o", tmp_path / "out.png")
+    assert_usage_error(result.returncode, result.stderr, "nope.json")
+    result = script(
+        "render",
+        tiny_scene_file,
+        "-o",
+        tmp_path / "out.png",
+        "--spp",
+        3,
+        "--width",
+        4,
+        "--height",
+        4,
+    )
+    assert result.returncode == 0, result.stderr
+    assert read_image(tmp_path / "out.png").shape == (4, 4, 3)
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.skipif(not TILERENDER.exists(), reason="console script not installed")
+def test_console_script_overflowing_transform(tmp_path):
+    """A transform whose determinant overflows is one line of error, even in a real process
+    where Python prints warnings."""
+    data = tiny_scene()
+    data["objects"][1]["transform"] = {"scale": 1e300}
+    scene = write_json(tmp_path / "scene.json", data)
+    result = script("render", scene, "-o", tmp_path / "out.png")
+    assert_usage_error(result.returncode, result.stderr, "singular")
+
+
+# --- samples --------------------------------------------------------------------------------
+
+
+def test_samples(capsys, tmp_path):
+    """`samples` renders each folder's scene.json (or its one glTF) to <folder>.png and .exr,
+    skipping folders without a scene."""
+    scenes = tmp_path / "scenes"
+    for name in ("alpha", "empty", "model"):
+        (scenes / name).mkdir(parents=True)
+    write_json(scenes / "alpha" / "scene.json", tiny_scene())
+    shutil.copy(GLTF_BOX, scenes / "model" / "Box.gltf")
+    out = tmp_path / "renders"
+    code, _, err = run(capsys, "samples", "--scenes", scenes, "--out", out, "--spp", 1, "-q")
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir()) == [
+        "alpha.exr",
+        "alpha.png",
+        "model.exr",
+        "model.png",
+    ]
+    assert read_image(out / "alpha.exr").shape == (8, 12, 3)
+    assert read_image(out / "model.png").shape == (480, 640, 3)
+
+
+def test_readme_sample_scenes_exist():
+    """The scenes the README and `samples` rely on are in the repository."""
+    from cli.commands import REPO_SCENES, sample_scene_files
+
+    assert REPO_SCENES == ROOT / "scenes"
+    names = {p.parent.name for p in sample_scene_files(REPO_SCENES)}
+    assert {"cornell-box", "gltf-box", "nefertiti", "studio"} <= names

@@ -1,0 +1,26 @@
+"""Fixtures shared by the test suite."""
+
+import pytest
+from hypothesis import HealthCheck, settings
+
+from tests.helpers import CORNELL, tiny_scene, write_json
+
+# Kernels compile on first use (cached on disk afterwards): no per-example deadline, and the
+# example counts are set per test, kept small so the suite stays fast on two cores.
+settings.register_profile("tilerender", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("tilerender")
+
+
+@pytest.fixture(scope="session")
+def cornell():
+    """The compiled Cornell box sample scene."""
+    from tracer.compile import compile_scene
+    from tracer.loader import load_scene
+
+    return compile_scene(load_scene(CORNELL))
+
+
+@pytest.fixture
+def tiny_scene_file(tmp_path):
+    """A small valid JSON scene (built-in shapes only) in its own directory."""
+    return write_json(tmp_path / "scene.json", tiny_scene())
