@@ -18,6 +18,10 @@ from tracer.compile import CompiledScene
 from tracer.integrator import render_pixels
 from tracer.threads import run_parts
 
+SAMPLES_PER_CALL = 1 << 18
+"""Samples per kernel call in ``render_image``: enough that the threads' shares even out
+(smaller calls measured 5% slower on two threads), few enough for a smooth progress bar."""
+
 
 @dataclass
 class RenderedLines:
@@ -117,8 +121,9 @@ def render_image(
     camera = camera or scene.camera
     settings = settings or scene.render
     if lines_per_call is None:
-        # About 2**16 samples a call: short enough for smooth progress, long enough to amortise.
-        lines_per_call = max(1, min(camera.height, 65536 // max(1, camera.width * settings.spp)))
+        lines_per_call = max(
+            1, min(camera.height, SAMPLES_PER_CALL // max(1, camera.width * settings.spp))
+        )
     image = np.empty((camera.height, camera.width, 3), np.float32)
     cost = np.empty(camera.height, np.int64)
     for y0 in range(0, camera.height, lines_per_call):
