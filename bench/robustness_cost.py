@@ -32,9 +32,10 @@ from numba import njit
 from raycast import camera_rays, icospheres
 
 from tracer import bvh, config
+from tracer.borrow import borrowed
 from tracer.compile import compile_scene
 from tracer.loader import load_scene
-from tracer.raycast import closest_hits
+from tracer.raycast import Hits, _closest
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_COST = 0.10
@@ -93,13 +94,16 @@ def _moller_trumbore(tv, j, o, d, t_max):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def naive_closest(node_bounds, node_child, tri_verts, tri_prim, origins, directions, stack_size):
+def naive_closest(
+    node_bounds, node_child, tri_verts, tri_prim, origins, directions, stack_node, stack_t, prim
+):
     """Closest hits with the pre-fix intersector; same traversal as tracer.intersect."""
-    n = origins.shape[0]
-    prim = np.full(n, -1, np.int32)
-    stack_node = np.empty(stack_size, np.int32)
-    stack_t = np.empty(stack_size, np.float64)
-    for i in range(n):
+    node_bounds = borrowed(node_bounds)
+    node_child = borrowed(node_child)
+    tri_verts = borrowed(tri_verts)
+    stack_node = borrowed(stack_node)
+    stack_t = borrowed(stack_t)
+    for i in range(origins.shape[0]):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (directions[i, 0], directions[i, 1], directions[i, 2])
         ix = 1.0 / d[0]
@@ -144,9 +148,7 @@ def naive_closest(node_bounds, node_child, tri_verts, tri_prim, origins, directi
                     break
             if node < 0:
                 break
-        if hit >= 0:
-            prim[i] = tri_prim[hit]
-    return prim
+        prim[i] = tri_prim[hit] if hit >= 0 else -1
 
 
 def cornell_camera_rays(count: int, rng: np.random.Generator):
@@ -171,19 +173,38 @@ def cornell_camera_rays(count: int, rng: np.random.Generator):
 
 
 def measure(name, accel, origins, directions, repeats):
-    """Time both intersectors on one workload; returns a table row and a JSON record."""
+    """Time both intersectors on one workload, each as a bare kernel call on one thread with
+    preallocated outputs (no input checks); returns a table row and a JSON record."""
+    n = len(origins)
     tables = (accel.node_bounds, accel.node_child, accel.tri_verts, accel.tri_prim)
-    stack = config.TRAVERSAL_STACK_SIZE
-    naive_closest(*tables, origins[:8], directions[:8], stack)  # compile / load from cache
-    closest_hits(accel, origins[:8], directions[:8], threads=1)
-    contenders = {
-        "robust": Contender(lambda _r: closest_hits(accel, origins, directions, threads=1).prim),
-        "naive": Contender(lambda _r: naive_closest(*tables, origins, directions, stack)),
-    }
+    stacks = (
+        np.empty(config.TRAVERSAL_STACK_SIZE, np.int32),
+        np.empty(config.TRAVERSAL_STACK_SIZE, np.float64),
+    )
+    t_max = np.full(n, np.inf)
+    robust_out = Hits(
+        np.full(n, -1, np.int32),
+        np.full(n, np.inf),
+        np.zeros((n, 3)),
+        np.zeros(n, np.int64),
+        np.full(n, -1, np.int32),
+    )
+    naive_prim = np.full(n, -1, np.int32)
+
+    def robust(_round):
+        _closest(*tables, origins, directions, t_max, 0, 1, *stacks, *robust_out)
+        return robust_out.prim.copy()
+
+    def naive(_round):
+        naive_closest(*tables, origins, directions, *stacks, naive_prim)
+        return naive_prim.copy()
+
+    robust(0)  # compile or load from the cache
+    naive(0)
     answers = {}
     series = interleaved(
-        contenders,
-        {"robust": len(origins), "naive": len(origins)},
+        {"robust": Contender(robust), "naive": Contender(naive)},
+        {"robust": n, "naive": n},
         repeats,
         on_result=lambda who, _r, value: answers.__setitem__(who, value),
     )
