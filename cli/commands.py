@@ -21,7 +21,7 @@ from tracer.render import render_image, render_lines
 
 REPO_SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
-stderr = Console(stderr=True, highlight=False)
+stderr = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -69,10 +69,20 @@ def write_image(path: str | Path, rgb: np.ndarray, metadata: dict | None = None)
                 "tilerender": text,
             }
             OpenEXR.File(header, {"RGB": rgb}).write(str(tmp))
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the usual permissions
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
     return path
+
+
+def _read_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()  # once, at import: os.umask is process-wide and not thread-safe to probe
 
 
 def read_image(path: str | Path) -> np.ndarray:
