@@ -33,7 +33,7 @@ from raycast import camera_rays, icospheres
 
 from tracer import bvh, config
 from tracer.borrow import borrowed
-from tracer.compile import compile_scene
+from tracer.compile import STATIC_KEY, compile_scene
 from tracer.loader import load_scene
 from tracer.raycast import Hits, _closest
 
@@ -152,7 +152,7 @@ def naive_closest(
 
 
 def cornell_camera_rays(count: int, rng: np.random.Generator):
-    """Jittered primary rays of the Cornell box's own camera (render space)."""
+    """Jittered primary rays of the Cornell box's own camera, in its static mesh's space."""
     scene = compile_scene(load_scene(ROOT / "scenes" / "cornell-box" / "scene.json"))
     cam = scene.camera
     side = int(np.ceil(np.sqrt(count)))
@@ -161,7 +161,8 @@ def cornell_camera_rays(count: int, rng: np.random.Generator):
     tan_half = np.tan(np.radians(cam.vfov_deg) / 2.0)
     x = ((idx % side + jitter[:, 0]) / side * 2.0 - 1.0) * tan_half
     y = (1.0 - (idx // side + jitter[:, 1]) / side * 2.0) * tan_half
-    position = np.asarray(cam.position) - scene.origin
+    static = scene.meshes[STATIC_KEY]
+    position = np.asarray(cam.position) - static.center
     forward = np.asarray(cam.look_at) - np.asarray(cam.position)
     forward /= np.linalg.norm(forward)
     right = np.cross(forward, cam.up)
@@ -169,7 +170,7 @@ def cornell_camera_rays(count: int, rng: np.random.Generator):
     up = np.cross(right, forward)
     d = forward + x[:, None] * right + y[:, None] * up
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return scene.bvh, np.ascontiguousarray(np.broadcast_to(position, (count, 3))), d
+    return static.bvh, np.ascontiguousarray(np.broadcast_to(position, (count, 3))), d
 
 
 def measure(name, accel, origins, directions, repeats):

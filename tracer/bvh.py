@@ -57,11 +57,11 @@ def _half_area(x0, y0, z0, x1, y1, z1):
 
 
 @jit
-def _build(tri_verts, prims, n_bins, max_leaf, c_trav, c_isect, max_depth):
+def triangle_bounds(tri_verts, prims):
+    """Boxes of the triangles ``prims``: float32 (n, 3) min and max corners."""
     n = prims.shape[0]
     lo = np.empty((n, 3), np.float32)
     hi = np.empty((n, 3), np.float32)
-    cen = np.empty((n, 3), np.float64)
     for i in range(n):
         p = prims[i]
         for a in range(3):
@@ -70,6 +70,15 @@ def _build(tri_verts, prims, n_bins, max_leaf, c_trav, c_isect, max_depth):
             x2 = tri_verts[p, 6 + a]
             lo[i, a] = min(x0, min(x1, x2))
             hi[i, a] = max(x0, max(x1, x2))
+    return lo, hi
+
+
+@jit
+def _build(lo, hi, prims, n_bins, max_leaf, c_trav, c_isect, max_depth):
+    n = prims.shape[0]
+    cen = np.empty((n, 3), np.float64)
+    for i in range(n):
+        for a in range(3):
             cen[i, a] = 0.5 * (np.float64(lo[i, a]) + np.float64(hi[i, a]))
     order = np.arange(n).astype(np.int32)
 
@@ -313,14 +322,21 @@ def build(tri_verts: np.ndarray, prims: np.ndarray | None = None) -> CanonicalBV
     if prims is None:
         prims = np.arange(tri_verts.shape[0], dtype=np.int32)
     prims = np.ascontiguousarray(prims, dtype=np.int32)
+    lo, hi = triangle_bounds(tri_verts, prims)
+    return build_boxes(lo, hi, prims)
+
+
+def build_boxes(lo: np.ndarray, hi: np.ndarray, prims: np.ndarray) -> CanonicalBVH:
+    """Build a canonical BVH over boxes ``lo``/``hi`` (float32, (M, 3)) named ``prims``."""
     if prims.shape[0] > MAX_TRIANGLES:
-        raise ValueError(f"at most {MAX_TRIANGLES} triangles per BVH, got {prims.shape[0]}")
+        raise ValueError(f"at most {MAX_TRIANGLES} primitives per BVH, got {prims.shape[0]}")
     if config.BVH_MAX_LEAF >= 1 << LEAF_COUNT_BITS:
         raise ValueError("BVH_MAX_LEAF does not fit the leaf encoding")
     result = CanonicalBVH(
         *_build(
-            tri_verts,
-            prims,
+            np.ascontiguousarray(lo, dtype=np.float32),
+            np.ascontiguousarray(hi, dtype=np.float32),
+            np.ascontiguousarray(prims, dtype=np.int32),
             config.BVH_BINS,
             config.BVH_MAX_LEAF,
             config.BVH_TRAVERSAL_COST,
@@ -329,10 +345,10 @@ def build(tri_verts: np.ndarray, prims: np.ndarray | None = None) -> CanonicalBV
         )
     )
     leaves = result.count > 0
-    if tree_depth(result.left_first, result.count) + 1 > config.TRAVERSAL_STACK_SIZE:
+    if tree_depth(result.left_first, result.count) + 1 > config.BVH_MAX_TREE_DEPTH:
         raise AssertionError("BVH deeper than the traversal stack allows")
     if int(result.count.sum()) != prims.shape[0]:
-        raise AssertionError("BVH leaves do not cover every triangle exactly once")
+        raise AssertionError("BVH leaves do not cover every primitive exactly once")
     if prims.shape[0] and int(leaves.sum()) * 2 - 1 != result.count.shape[0]:
         raise AssertionError("BVH node count is not 2 * leaves - 1")
     return result
@@ -426,3 +442,54 @@ def decode_leaf(child: int) -> tuple[int, int]:
     """``(first, count)`` of a leaf child reference (``child < 0``)."""
     v = -1 - int(child)
     return v >> LEAF_COUNT_BITS, v & ((1 << LEAF_COUNT_BITS) - 1)
+
+
+@jit
+def _refit(node_bounds, node_child, tri_verts):
+    for node in range(node_bounds.shape[0] - 1, -1, -1):  # children come after their parent
+        for side in range(2):
+            c = node_child[node, side]
+            lo0 = np.inf
+            lo1 = np.inf
+            lo2 = np.inf
+            hi0 = -np.inf
+            hi1 = -np.inf
+            hi2 = -np.inf
+            if c >= 0:
+                for half in range(2):
+                    o = 6 * half
+                    lo0 = min(lo0, node_bounds[c, o])
+                    lo1 = min(lo1, node_bounds[c, o + 1])
+                    lo2 = min(lo2, node_bounds[c, o + 2])
+                    hi0 = max(hi0, node_bounds[c, o + 3])
+                    hi1 = max(hi1, node_bounds[c, o + 4])
+                    hi2 = max(hi2, node_bounds[c, o + 5])
+            else:
+                v = -1 - c
+                for j in range(v >> 3, (v >> 3) + (v & 7)):
+                    for q in range(3):
+                        lo0 = min(lo0, tri_verts[j, 3 * q])
+                        lo1 = min(lo1, tri_verts[j, 3 * q + 1])
+                        lo2 = min(lo2, tri_verts[j, 3 * q + 2])
+                        hi0 = max(hi0, tri_verts[j, 3 * q])
+                        hi1 = max(hi1, tri_verts[j, 3 * q + 1])
+                        hi2 = max(hi2, tri_verts[j, 3 * q + 2])
+            o = 6 * side
+            node_bounds[node, o] = lo0
+            node_bounds[node, o + 1] = lo1
+            node_bounds[node, o + 2] = lo2
+            node_bounds[node, o + 3] = hi0
+            node_bounds[node, o + 4] = hi1
+            node_bounds[node, o + 5] = hi2
+
+
+def refit(bvh: TraversalBVH, tri_verts: np.ndarray) -> TraversalBVH:
+    """The same tree over moved triangles: ``tri_verts`` float32 (M, 9) replaces the rows of
+    ``bvh.tri_verts`` (same leaf order); every box is recomputed bottom-up. Returns a new BVH
+    and leaves ``bvh`` untouched."""
+    tri_verts = np.ascontiguousarray(tri_verts, dtype=np.float32)
+    if tri_verts.shape != bvh.tri_verts.shape:
+        raise ValueError("refit needs the same number of triangles")
+    bounds = bvh.node_bounds.copy()
+    _refit(bounds, bvh.node_child, tri_verts)
+    return TraversalBVH(bounds, bvh.node_child, tri_verts, bvh.tri_prim)

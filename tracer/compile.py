@@ -1,11 +1,24 @@
-"""Compile loaded scene data into the flat arrays kernels read.
+"""Compile a scene state into the arrays kernels read (``tracer.scene_arrays``).
 
-Steps: concatenate every mesh's triangles; move the scene next to the origin (render space, so
-float32 vertices keep their precision however far from the world origin the scene sits); drop
-triangles of exactly zero area (they can never be hit; checked with exact rational arithmetic);
-build the BVH; lay materials and emitters out as tables.
+Two levels (Reiter ch. 3): every mesh gets a BVH in its own object space, and a top-level BVH
+is built over the instances that place meshes in the world. Static nodes are baked into one
+world-space mesh (static geometry never moves, so one tree serves it best); rigid, deformable
+and dynamic nodes are instances of their meshes, which many nodes may share.
+
+Compiling is incremental: given the previous compiled scene, every mesh BVH, pool and table
+whose inputs are the very same objects is reused (states share unchanged objects), a mesh whose
+vertices moved but whose faces did not is refitted instead of rebuilt, and only the top level
+and the small tables are made anew. Moving one object therefore costs a top-level rebuild,
+not a pass over the scene's triangles. The result is immutable, so a frame in flight keeps
+rendering the version it started with while the next one compiles.
+
+Every mesh is stored relative to its own centre (snapped to a power-of-two grid), so float32
+vertices keep their precision wherever the mesh sits; transforms are float64. Triangles of
+exactly zero area are dropped (decided with exact rational arithmetic); a mesh with nothing else
+is an error.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from fractions import Fraction
@@ -15,18 +28,22 @@ import numpy as np
 
 from tracer import bvh as bvh_module
 from tracer import scene_format as fmt
-from tracer.bsdf import MATERIAL_KINDS
 from tracer.errors import SceneError
+from tracer.jit import jit
 from tracer.lights import LightTable, build_light_table
-from tracer.loader import SceneData
+from tracer.scene_arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
+from tracer.scene_model import Mesh, SceneState
+from tracer.transforms import round_trip_bound, to_rows
 
+STATIC_KEY = "\0static"
+"""Key of the baked static mesh among the compiled meshes (not a valid user mesh name)."""
 FLOAT32_SAFE_EXTENT = 1e30
-"""Largest scene extent accepted: squares of render-space distances must stay finite."""
+"""Largest mesh extent accepted: squares of object-space distances must stay finite."""
 
 
 class MaterialTable(NamedTuple):
-    """Per material: ``kind`` int32 (K,), ``albedo`` and ``emission`` float32 (K, 3),
-    ``two_sided`` bool (K,)."""
+    """Per material, in the state's order: ``kind`` int32 (K,), ``albedo`` and ``emission``
+    float32 (K, 3), ``two_sided`` bool (K,)."""
 
     kind: np.ndarray
     albedo: np.ndarray
@@ -34,39 +51,102 @@ class MaterialTable(NamedTuple):
     two_sided: np.ndarray
 
 
+@dataclass(frozen=True, eq=False)
+class MeshAccel:
+    """One mesh's BVH in object space, relative to ``center``.
+
+    ``source`` is what it was built from (compared by identity for reuse); ``tri_material``
+    (int32, leaf order) is each triangle's material for the baked static mesh and -1 otherwise;
+    ``lo``/``hi`` bound the stored vertices; ``zero_area`` marks the dropped triangles in the
+    mesh's own order.
+    """
+
+    source: object
+    bvh: bvh_module.TraversalBVH
+    center: np.ndarray
+    tri_material: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    zero_area: np.ndarray
+    owner: np.ndarray | None = None
+    """For the baked static mesh, int32 (T, 2) per triangle (mesh order): the scene node it came
+    from and its index in that node's mesh. ``None`` for user meshes."""
+
+    @property
+    def triangles(self) -> int:
+        return int(self.zero_area.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class Pool:
+    """Mesh BVHs concatenated into one set of arrays; ``node_offset`` and ``tri_offset`` say
+    where each mesh (by key) starts."""
+
+    keys: tuple[str, ...]
+    accels: tuple[MeshAccel, ...]
+    node_offset: dict[str, int]
+    tri_offset: dict[str, int]
+    bounds: np.ndarray
+    child: np.ndarray
+    tri_verts: np.ndarray
+    tri_prim: np.ndarray
+    tri_material: np.ndarray
+
+
 @dataclass(frozen=True)
 class SceneStats:
     triangles: int
     degenerate_triangles: int
     emissive_triangles: int
+    instances: int
     bounds_min: tuple[float, float, float]
     bounds_max: tuple[float, float, float]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class CompiledScene:
-    """Everything a render needs. Positions are in render space: world minus ``origin``."""
+    """Everything a render needs, for one version of a scene."""
 
-    bvh: bvh_module.TraversalBVH
-    tri_material: np.ndarray
-    materials: MaterialTable
-    material_names: tuple[str, ...]
-    lights: LightTable
+    state: SceneState
     origin: np.ndarray
-    camera: fmt.Camera
-    render: fmt.RenderSettings
+    """float64 (3,): world position of the render-space origin (positions in ``arrays`` are
+    world minus origin)."""
+    arrays: SceneArrays
+    materials: MaterialTable
+    lights: LightTable
+    meshes: dict[str, MeshAccel]
+    pools: tuple[Pool, Pool]
+    static_signature: tuple
+    instance_nodes: np.ndarray
+    """int32 (I,): the scene node of each instance (-1 for the baked static mesh)."""
     stats: SceneStats
 
     @property
+    def camera(self) -> fmt.Camera:
+        return self.state.camera
+
+    @property
+    def render(self) -> fmt.RenderSettings:
+        return self.state.render
+
+    @property
+    def version(self) -> int:
+        return self.state.version
+
+    @property
+    def material_names(self) -> tuple[str, ...]:
+        return tuple(self.state.materials)
+
+    @property
     def nbytes(self) -> int:
-        """Bytes of per-triangle data and BVH nodes (what tracing and shading read)."""
-        return self.bvh.nbytes + self.tri_material.nbytes
+        """Bytes of every array the kernels read."""
+        return self.arrays.nbytes
 
 
 def render_space_origin(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The centre of the bounds, snapped to a power-of-two grid as coarse as the scene's extent.
+    """The centre of the bounds, snapped to a power-of-two grid as coarse as their extent.
 
-    Snapping leaves a scene that already sits around the origin exactly where it is, and moves a
+    Snapping leaves a mesh that already sits around its origin exactly where it is, and moves a
     distant one by an amount that float64 represents exactly at its scale.
     """
     center = 0.5 * (lo + hi)
@@ -106,63 +186,316 @@ def zero_area_mask(tri_verts: np.ndarray) -> np.ndarray:
     return mask
 
 
-def compile_scene(data: SceneData) -> CompiledScene:
-    """Flatten, validate and accelerate a loaded scene."""
-    if not data.meshes:
-        raise SceneError("the scene has no objects")
-    lo = np.min([m.vertices.min(axis=0) for m in data.meshes], axis=0)
-    hi = np.max([m.vertices.max(axis=0) for m in data.meshes], axis=0)
-    origin = render_space_origin(lo, hi)
-    if (
-        not np.isfinite(hi - lo).all()
-        or np.abs(np.concatenate([lo, hi]) - np.tile(origin, 2)).max() > 3e38
-    ):
-        raise SceneError("the scene is too large for float32 coordinates")
+def _centered_triangles(vertices: np.ndarray, faces: np.ndarray, label: str):
+    lo = vertices.min(axis=0)
+    hi = vertices.max(axis=0)
+    if not (np.isfinite(hi - lo).all() and float(np.max(hi - lo)) < FLOAT32_SAFE_EXTENT):
+        raise SceneError(f"{label}: the mesh is too large for float32 coordinates")
+    center = render_space_origin(lo, hi)
+    tri_verts = (vertices[faces] - center).reshape(-1, 9).astype(np.float32)
+    return center, tri_verts
 
-    parts = []
-    materials = []
-    degenerate = 0
-    for mesh in data.meshes:
-        tris = (mesh.vertices[mesh.faces] - origin).reshape(-1, 9).astype(np.float32)
-        bad = zero_area_mask(tris)
-        if bad.all():
-            raise SceneError(f"{mesh.name}: every triangle of the mesh has zero area")
-        degenerate += int(bad.sum())
-        parts.append((tris, bad))
-        materials.append(np.full(tris.shape[0], mesh.material, dtype=np.int32))
-    tri_verts = np.concatenate([p[0] for p in parts])
-    valid = np.flatnonzero(~np.concatenate([p[1] for p in parts])).astype(np.int32)
-    tri_material_all = np.concatenate(materials)
 
+def _accel(source, tri_verts, center, zero_area, per_triangle_material, label) -> MeshAccel:
+    valid = np.flatnonzero(~zero_area).astype(np.int32)
+    if valid.size == 0:
+        raise SceneError(f"{label}: every triangle of the mesh has zero area")
     accel = bvh_module.to_traversal(bvh_module.build(tri_verts, valid), tri_verts)
-    tri_material = tri_material_all[accel.tri_prim]
-    table = material_table(data.materials)
-    lights = build_light_table(accel.tri_verts, tri_material, table.emission)
-    stats = SceneStats(
-        triangles=int(tri_verts.shape[0]),
-        degenerate_triangles=degenerate,
-        emissive_triangles=int(lights.tri.shape[0]),
-        bounds_min=tuple(float(x) for x in lo),
-        bounds_max=tuple(float(x) for x in hi),
+    material = per_triangle_material[accel.tri_prim].astype(np.int32)
+    v = accel.tri_verts.reshape(-1, 3).astype(np.float64)
+    return MeshAccel(source, accel, center, material, v.min(axis=0), v.max(axis=0), zero_area)
+
+
+def mesh_accel(key: str, mesh: Mesh, previous: MeshAccel | None) -> MeshAccel:
+    """The BVH of a user mesh: reused if built from this very mesh, refitted if only its
+    vertices moved (same faces array, same zero-area triangles), else built."""
+    if previous is not None and previous.source is mesh:
+        return previous
+    center, tri_verts = _centered_triangles(mesh.vertices, mesh.faces, f"mesh {key!r}")
+    zero_area = zero_area_mask(tri_verts)
+    no_material = np.full(tri_verts.shape[0], -1, dtype=np.int32)
+    if (
+        previous is not None
+        and isinstance(previous.source, Mesh)
+        and previous.source.faces is mesh.faces
+        and np.array_equal(previous.zero_area, zero_area)
+    ):
+        moved = bvh_module.refit(previous.bvh, tri_verts[previous.bvh.tri_prim])
+        v = moved.tri_verts.reshape(-1, 3).astype(np.float64)
+        return MeshAccel(
+            mesh, moved, center, previous.tri_material, v.min(axis=0), v.max(axis=0), zero_area
+        )
+    return _accel(mesh, tri_verts, center, zero_area, no_material, f"mesh {key!r}")
+
+
+def static_signature(state: SceneState) -> tuple:
+    """What the baked static mesh depends on: each static geometry node, its mesh and its world
+    transform (a moving parent moves a static child too)."""
+    return tuple(
+        (node, state.meshes[node.mesh], state.world_transform(node.id).tobytes())
+        for node in state.geometry_nodes()
+        if node.kind == "static"
     )
-    return CompiledScene(
-        bvh=accel,
-        tri_material=tri_material,
-        materials=table,
-        material_names=tuple(data.material_names),
-        lights=lights,
-        origin=origin,
-        camera=data.camera,
-        render=data.render,
-        stats=stats,
+
+
+def _same_signature(a: tuple, b: tuple) -> bool:
+    return len(a) == len(b) and all(
+        x[0] is y[0] and x[1] is y[1] and x[2] == y[2] for x, y in zip(a, b, strict=True)
+    )
+
+
+def static_accel(state: SceneState, signature: tuple, material_index: dict) -> MeshAccel | None:
+    """All static geometry baked into one world-space mesh (triangles in node order)."""
+    if not signature:
+        return None
+    parts, materials, owners, locals_ = [], [], [], []
+    for node, mesh, _ in signature:
+        matrix = state.world_transform(node.id)
+        with np.errstate(all="ignore"):
+            world = mesh.vertices @ matrix[:3, :3].T + matrix[:3, 3]
+        if not np.isfinite(world).all():
+            raise SceneError(f"{node.name or node.id}: its transform moves vertices to infinity")
+        faces = mesh.faces[:, ::-1] if np.linalg.det(matrix[:3, :3]) < 0.0 else mesh.faces
+        parts.append(world[faces])
+        materials.append(np.full(faces.shape[0], material_index[node.material], np.int32))
+        owners.append(np.full(faces.shape[0], node.id, np.int64))
+        locals_.append(np.arange(faces.shape[0], dtype=np.int64))
+    triangles = np.concatenate(parts)
+    lo = triangles.reshape(-1, 3).min(axis=0)
+    hi = triangles.reshape(-1, 3).max(axis=0)
+    if not (np.isfinite(hi - lo).all() and float(np.max(hi - lo)) < FLOAT32_SAFE_EXTENT):
+        raise SceneError("the static scene is too large for float32 coordinates")
+    center = render_space_origin(lo, hi)
+    tri_verts = (triangles - center).reshape(-1, 9).astype(np.float32)
+    zero_area = zero_area_mask(tri_verts)
+    owner = np.concatenate(owners)
+    for node, _, _ in signature:
+        mine = owner == node.id
+        if zero_area[mine].all():
+            raise SceneError(f"{node.name or node.id}: every triangle of the mesh has zero area")
+    accel = _accel(signature, tri_verts, center, zero_area, np.concatenate(materials), "scene")
+    owner_table = np.stack([owner, np.concatenate(locals_)], axis=1).astype(np.int32)
+    return dataclasses.replace(accel, owner=owner_table)
+
+
+@jit
+def _shift_children(child, node_offset, tri_offset):
+    out = np.empty_like(child)
+    for i in range(child.shape[0]):
+        for side in range(2):
+            c = child[i, side]
+            if c >= 0:
+                out[i, side] = c + node_offset
+            else:
+                v = -1 - c
+                count = v & 7
+                first = (v >> 3) + (tri_offset if count > 0 else 0)
+                out[i, side] = -1 - ((first << 3) | count)
+    return out
+
+
+def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Pool | None) -> Pool:
+    """Concatenate mesh BVHs; reuse ``previous`` if it holds exactly these."""
+    if (
+        previous is not None
+        and previous.keys == keys
+        and all(a is b for a, b in zip(previous.accels, accels, strict=True))
+    ):
+        return previous
+    node_offset, tri_offset = {}, {}
+    bounds, child, verts, prim, material = [], [], [], [], []
+    nodes = tris = 0
+    for key, accel in zip(keys, accels, strict=True):
+        node_offset[key] = nodes
+        tri_offset[key] = tris
+        bounds.append(accel.bvh.node_bounds)
+        child.append(_shift_children(accel.bvh.node_child, nodes, tris))
+        verts.append(accel.bvh.tri_verts)
+        prim.append(accel.bvh.tri_prim)
+        material.append(accel.tri_material)
+        nodes += accel.bvh.node_bounds.shape[0]
+        tris += accel.bvh.tri_verts.shape[0]
+    if tris > bvh_module.MAX_TRIANGLES:
+        raise SceneError(f"at most {bvh_module.MAX_TRIANGLES} triangles per pool")
+
+    def joined(parts, shape, dtype):
+        return np.concatenate(parts) if parts else np.zeros(shape, dtype)
+
+    return Pool(
+        keys,
+        accels,
+        node_offset,
+        tri_offset,
+        joined(bounds, (0, 12), np.float32),
+        joined(child, (0, 2), np.int32),
+        joined(verts, (0, 9), np.float32),
+        joined(prim, (0,), np.int32),
+        joined(material, (0,), np.int32),
     )
 
 
 def material_table(materials: list[fmt.DiffuseMaterial]) -> MaterialTable:
     """Columns of the material models, in their order."""
+    from tracer.bsdf import MATERIAL_KINDS
+
     return MaterialTable(
         kind=np.array([MATERIAL_KINDS[m.type] for m in materials], dtype=np.int32),
         albedo=np.array([m.reflectance for m in materials], dtype=np.float32).reshape(-1, 3),
         emission=np.array([m.emission for m in materials], dtype=np.float32).reshape(-1, 3),
         two_sided=np.array([m.two_sided for m in materials], dtype=np.bool_),
+    )
+
+
+def _world_box(accel: MeshAccel, xform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    corners = np.array(
+        [[x, y, z] for x in (accel.lo[0], accel.hi[0]) for y in (accel.lo[1], accel.hi[1])
+         for z in (accel.lo[2], accel.hi[2])]
+    )  # fmt: skip
+    m = xform.reshape(3, 4)
+    world = corners @ m[:, :3].T + m[:, 3]
+    return world.min(axis=0), world.max(axis=0)
+
+
+def _outward_float32(lo: np.ndarray, hi: np.ndarray):
+    lo32 = lo.astype(np.float32)
+    hi32 = hi.astype(np.float32)
+    lo32 = np.where(lo32 > lo, np.nextafter(lo32, np.float32(-np.inf)), lo32)
+    hi32 = np.where(hi32 < hi, np.nextafter(hi32, np.float32(np.inf)), hi32)
+    return lo32, hi32
+
+
+def _pool_of(state: SceneState) -> dict[str, int]:
+    """Pool of each mesh used by a non-static node: volatile if any user deforms it."""
+    pools: dict[str, int] = {}
+    for node in state.geometry_nodes():
+        if node.kind == "static":
+            continue
+        moving = node.kind in ("deformable", "dynamic")
+        if moving or node.mesh not in pools:
+            pools[node.mesh] = VOLATILE_POOL if moving else STABLE_POOL
+    return pools
+
+
+def compile_scene(scene, previous: CompiledScene | None = None) -> CompiledScene:
+    """Compile a :class:`SceneState` (or a ``tracer.loader.SceneData``), reusing what it can
+    of ``previous`` (the compiled form of an earlier version of the same scene)."""
+    state = scene.to_state() if hasattr(scene, "to_state") else scene
+    if not state.geometry_nodes():
+        raise SceneError("the scene has no objects")
+    material_index = {name: i for i, name in enumerate(state.materials)}
+    materials = material_table(list(state.materials.values()))
+    old_meshes = previous.meshes if previous is not None else {}
+
+    # Mesh BVHs: the baked static mesh, then every mesh a non-static node uses.
+    signature = static_signature(state)
+    meshes: dict[str, MeshAccel] = {}
+    if previous is not None and _same_signature(previous.static_signature, signature):
+        if STATIC_KEY in old_meshes:
+            meshes[STATIC_KEY] = old_meshes[STATIC_KEY]
+    else:
+        baked = static_accel(state, signature, material_index)
+        if baked is not None:
+            meshes[STATIC_KEY] = baked
+    pool_of = _pool_of(state)
+    for key in sorted(pool_of):
+        meshes[key] = mesh_accel(key, state.meshes[key], old_meshes.get(key))
+
+    # Pools.
+    stable_keys = ([STATIC_KEY] if STATIC_KEY in meshes else []) + sorted(
+        k for k, p in pool_of.items() if p == STABLE_POOL
+    )
+    volatile_keys = sorted(k for k, p in pool_of.items() if p == VOLATILE_POOL)
+    old_pools = previous.pools if previous is not None else (None, None)
+    pools = (
+        make_pool(tuple(stable_keys), tuple(meshes[k] for k in stable_keys), old_pools[0]),
+        make_pool(tuple(volatile_keys), tuple(meshes[k] for k in volatile_keys), old_pools[1]),
+    )
+
+    # Render space is world space moved by ``origin``, the static mesh's centre: the static mesh
+    # then needs no transform at all, and kernels skip it.
+    origin = meshes[STATIC_KEY].center if STATIC_KEY in meshes else np.zeros(3)
+    to_render = np.eye(4)
+    to_render[:3, 3] = -origin
+
+    # Instances: the static mesh first, then non-static geometry nodes in id order.
+    inst = []  # (node id, key, pool, object -> render 4x4, material index)
+    if STATIC_KEY in meshes:
+        inst.append((-1, STATIC_KEY, STABLE_POOL, np.eye(4), -1))
+    for node in state.geometry_nodes():
+        if node.kind != "static":
+            shift = np.eye(4)
+            shift[:3, 3] = meshes[node.mesh].center
+            matrix = to_render @ state.world_transform(node.id) @ shift
+            inst.append(
+                (node.id, node.mesh, pool_of[node.mesh], matrix, material_index[node.material])
+            )
+    xform = np.array([to_rows(m) for _, _, _, m, _ in inst])
+    inv = np.array([to_rows(np.linalg.inv(m)) for _, _, _, m, _ in inst])
+    inst_pool = np.array([p for _, _, p, _, _ in inst], dtype=np.int32)
+    inst_root = np.array([pools[p].node_offset[key] for _, key, p, _, _ in inst], np.int32)
+    inst_material = np.array([m for *_, m in inst], dtype=np.int32)
+    inst_rt = np.array([round_trip_bound(m) for _, _, _, m, _ in inst], dtype=np.float64)
+    inst_identity = np.array([np.array_equal(m, np.eye(4)) for _, _, _, m, _ in inst], np.bool_)
+
+    # The top level, over the instances' world boxes.
+    boxes = [_world_box(meshes[key], xform[k]) for k, (_, key, _, _, _) in enumerate(inst)]
+    lo, hi = _outward_float32(np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes]))
+    top = bvh_module.build_boxes(lo, hi, np.arange(len(inst), dtype=np.int32))
+    tlas = bvh_module.to_traversal(top, np.zeros((len(inst), 9), np.float32))
+
+    # Lights: every emissive triangle of every instance, in (instance, triangle) order.
+    light_inputs = []
+    for k, (_, key, p, _, m) in enumerate(inst):
+        first = pools[p].tri_offset[key]
+        rows = np.arange(first, first + meshes[key].bvh.tri_verts.shape[0])
+        mats = pools[p].tri_material[rows] if m < 0 else np.full(rows.shape[0], m, np.int32)
+        light_inputs.append((k, pools[p].tri_verts, rows, pools[p].tri_prim[rows], mats, xform[k]))
+    lights = build_light_table(light_inputs, materials.emission)
+
+    arrays = SceneArrays(
+        blas_bounds=(pools[0].bounds, pools[1].bounds),
+        blas_child=(pools[0].child, pools[1].child),
+        tri_verts=(pools[0].tri_verts, pools[1].tri_verts),
+        tri_prim=(pools[0].tri_prim, pools[1].tri_prim),
+        tri_material=(pools[0].tri_material, pools[1].tri_material),
+        inst_pool=inst_pool,
+        inst_root=inst_root,
+        inst_xform=xform,
+        inst_inv=inv,
+        inst_material=inst_material,
+        inst_identity=inst_identity,
+        inst_rt=inst_rt,
+        tlas_bounds=tlas.node_bounds,
+        tlas_child=tlas.node_child,
+        tlas_inst=tlas.tri_prim,
+        mat_albedo=materials.albedo,
+        mat_emission=materials.emission,
+        mat_two_sided=materials.two_sided,
+        light_inst=lights.inst,
+        light_tri=lights.tri,
+        light_cdf=lights.cdf,
+        light_total=lights.total_power,
+        sky=np.array(state.sky.radiance, dtype=np.float64),
+    )
+    stats = SceneStats(
+        triangles=sum(meshes[key].triangles for key in set(k for _, k, _, _, _ in inst)),
+        degenerate_triangles=sum(
+            int(meshes[key].zero_area.sum()) for key in set(k for _, k, _, _, _ in inst)
+        ),
+        emissive_triangles=int(lights.inst.shape[0]),
+        instances=len(inst),
+        bounds_min=tuple(float(x) for x in lo.min(axis=0) + origin),
+        bounds_max=tuple(float(x) for x in hi.max(axis=0) + origin),
+    )
+    return CompiledScene(
+        state=state,
+        origin=origin,
+        arrays=arrays,
+        materials=materials,
+        lights=lights,
+        meshes=meshes,
+        pools=pools,
+        static_signature=signature,
+        instance_nodes=np.array([n for n, *_ in inst], dtype=np.int32),
+        stats=stats,
     )

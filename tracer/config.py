@@ -14,10 +14,12 @@ BVH_INTERSECT_COST = 1.0
 BVH_MAX_BUILD_DEPTH = 48
 """Below this depth the builder stops trusting SAH and splits at the index median, which bounds
 the tree depth (and the traversal stack) for adversarial inputs such as collinear centroids."""
-TRAVERSAL_STACK_SIZE = 96
-"""Entries on a traversal stack. A traversal holds at most one entry per tree level plus one,
-and the builder keeps the depth at most ``BVH_MAX_BUILD_DEPTH`` + 28 (index-median splits below
-that depth, at most 2**28 triangles): 77. ``bvh.build`` checks the bound on every tree."""
+BVH_MAX_TREE_DEPTH = 80
+"""Deepest tree allowed. The builder keeps the depth at most ``BVH_MAX_BUILD_DEPTH`` + 28
+(index-median splits below that depth, at most 2**28 primitives): 76. ``bvh.build`` checks it."""
+TRAVERSAL_STACK_SIZE = 3 * BVH_MAX_TREE_DEPTH
+"""Entries on a traversal stack. A traversal holds at most one entry per tree level plus one;
+a scene traversal stacks a mesh's traversal on top of the top level's."""
 
 # --- Rays ------------------------------------------------------------------------------------
 SHADOW_EPSILON = 1e-9

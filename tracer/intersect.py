@@ -36,6 +36,8 @@ GAMMA3 = gamma(3)
 GAMMA5 = gamma(5)
 GAMMA7 = gamma(7)
 SLAB_WIDEN = 1.0 + 2.0 * GAMMA3
+NO_INSTANCE = np.iinfo(np.int32).max
+"""Key of "no hit yet" in the closest-hit tie-break: above every real instance or triangle."""
 OFFSET_ROUNDING_MARGIN = 8.0 * MACHINE_EPSILON
 """Covers sum_i |n_i| * ulp(o_i) <= sqrt(3) * 2 eps * max|o_i| for the rounded origin o."""
 
@@ -161,22 +163,50 @@ def intersect_triangle(tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_ma
 
 
 @jit_inline
-def intersect(node_bounds, node_child, tri_verts, o, d, t_max, stack_node, stack_t):
-    """Closest hit of the ray ``o + t d``, ``t`` in (0, t_max).
+def closer(t, inst, prim, t_best, inst_best, prim_best):
+    """Whether a hit (t, inst, prim) beats the best so far: nearer, or as near and of a lower
+    (instance, triangle) key. The tie-break makes the closest hit independent of the order in
+    which the BVH visits triangles, so refitted and rebuilt trees render the same pixels."""
+    if t < t_best:
+        return True
+    if t > t_best:
+        return False
+    return inst < inst_best or (inst == inst_best and prim < prim_best)
 
-    Returns ``(j, t, b0, b1, b2, cost)``: ``j`` the hit triangle in leaf order (-1 for a miss),
-    barycentrics of the hit, and the node visits plus triangle tests spent (a work measure).
+
+@jit_inline
+def blas_closest(
+    node_bounds,
+    node_child,
+    tri_verts,
+    tri_prim,
+    root,
+    inst,
+    o,
+    d,
+    t_hit,
+    h_inst,
+    h_j,
+    h_prim,
+    hb0,
+    hb1,
+    hb2,
+    stack_node,
+    stack_t,
+    sp0,
+):
+    """Closest-hit traversal of one BVH from node ``root`` for the ray ``o + t d``.
+
+    Continues a search whose best hit so far is ``(t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2)``
+    (``h_j`` the triangle's row, ``h_prim`` its original index, ``hb*`` barycentrics); triangles
+    here belong to instance ``inst``. Uses the stacks above ``sp0``. Returns the updated best hit
+    and the work done: ``(t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost)``.
     """
     ox, oy, oz = o
     ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
-    hit = -1
-    t_hit = t_max
-    hb0 = 0.0
-    hb1 = 0.0
-    hb2 = 0.0
     cost = 0
-    sp = 0
-    node = 0
+    sp = sp0
+    node = root
     while True:
         cost += 1
         c0 = node_child[node, 0]
@@ -187,67 +217,56 @@ def intersect(node_bounds, node_child, tri_verts, o, d, t_max, stack_node, stack
             c0, c1 = c1, c0
             t0, t1 = t1, t0
         next_node = -1
-        # Near child first: test a leaf now, descend into an interior node next.
-        if t0 < t_hit:
-            if c0 < 0:
-                v = -1 - c0
-                first = v >> 3
-                for j in range(first, first + (v & 7)):
-                    cost += 1
-                    t, b0, b1, b2 = intersect_triangle(
-                        tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
-                    )
-                    if t < t_hit:
-                        t_hit = t
-                        hit = j
-                        hb0 = b0
-                        hb1 = b1
-                        hb2 = b2
-            else:
-                next_node = c0
-        if t1 < t_hit:
-            if c1 < 0:
-                v = -1 - c1
-                first = v >> 3
-                for j in range(first, first + (v & 7)):
-                    cost += 1
-                    t, b0, b1, b2 = intersect_triangle(
-                        tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
-                    )
-                    if t < t_hit:
-                        t_hit = t
-                        hit = j
-                        hb0 = b0
-                        hb1 = b1
-                        hb2 = b2
-            elif next_node < 0:
-                next_node = c1
-            else:
-                stack_node[sp] = c1
-                stack_t[sp] = t1
-                sp += 1
+        # Near child first: test a leaf now, descend into an interior node next. A box entered
+        # exactly at t_hit may still hold a tie with a lower key, hence <=.
+        for c, tc in ((c0, t0), (c1, t1)):
+            if tc <= t_hit and tc < np.inf:
+                if c < 0:
+                    v = -1 - c
+                    for j in range(v >> 3, (v >> 3) + (v & 7)):
+                        cost += 1
+                        t, b0, b1, b2 = intersect_triangle(
+                            tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
+                        )
+                        if t < np.inf and closer(t, inst, tri_prim[j], t_hit, h_inst, h_prim):
+                            t_hit = t
+                            h_inst = inst
+                            h_j = j
+                            h_prim = tri_prim[j]
+                            hb0 = b0
+                            hb1 = b1
+                            hb2 = b2
+                elif next_node < 0:
+                    next_node = c
+                else:
+                    stack_node[sp] = c
+                    stack_t[sp] = tc
+                    sp += 1
         if next_node >= 0:
             node = next_node
             continue
         # Pop the nearest pending node that can still hold a closer hit.
         node = -1
-        while sp > 0:
+        while sp > sp0:
             sp -= 1
-            if stack_t[sp] < t_hit:
+            if stack_t[sp] <= t_hit:
                 node = stack_node[sp]
                 break
         if node < 0:
-            return hit, t_hit, hb0, hb1, hb2, cost
+            return t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost
 
 
 @jit_inline
-def occluded(node_bounds, node_child, tri_verts, o, d, t_max, stack_node):
-    """Whether anything lies on the ray ``o + t d`` for ``t`` in (0, t_max). Returns (hit, cost)."""
+def blas_occluded(node_bounds, node_child, tri_verts, root, o, d, t_max, stack_node, sp0):
+    """Whether anything in one BVH (from ``root``) lies on ``o + t d``, ``t`` in (0, t_max).
+
+    Uses the stack above ``sp0``. Returns ``(hit, cost)``.
+    """
     ox, oy, oz = o
     ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
     cost = 0
-    sp = 0
-    node = 0
+    sp = sp0
+    node = root
     while True:
         cost += 1
         for side in range(2):
@@ -255,8 +274,7 @@ def occluded(node_bounds, node_child, tri_verts, o, d, t_max, stack_node):
             if slab(node_bounds, node, 6 * side, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max) < t_max:
                 if c < 0:
                     v = -1 - c
-                    first = v >> 3
-                    for j in range(first, first + (v & 7)):
+                    for j in range(v >> 3, (v >> 3) + (v & 7)):
                         cost += 1
                         t, _, _, _ = intersect_triangle(
                             tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max
@@ -266,10 +284,30 @@ def occluded(node_bounds, node_child, tri_verts, o, d, t_max, stack_node):
                 else:
                     stack_node[sp] = c
                     sp += 1
-        if sp == 0:
+        if sp == sp0:
             return False, cost
         sp -= 1
         node = stack_node[sp]
+
+
+@jit_inline
+def intersect(node_bounds, node_child, tri_verts, tri_prim, o, d, t_max, stack_node, stack_t):
+    """Closest hit of the ray ``o + t d``, ``t`` in (0, t_max), in one BVH.
+
+    Returns ``(j, t, b0, b1, b2, cost)``: ``j`` the hit triangle's row (-1 for a miss),
+    barycentrics of the hit, and the node visits plus triangle tests spent (a work measure).
+    """
+    t, _, j, _, b0, b1, b2, cost = blas_closest(
+        node_bounds, node_child, tri_verts, tri_prim, 0, 0, o, d, t_max,
+        NO_INSTANCE, -1, NO_INSTANCE, 0.0, 0.0, 0.0, stack_node, stack_t, 0,
+    )  # fmt: skip
+    return j, t, b0, b1, b2, cost
+
+
+@jit_inline
+def occluded(node_bounds, node_child, tri_verts, o, d, t_max, stack_node):
+    """Whether anything in one BVH lies on ``o + t d`` for ``t`` in (0, t_max): (hit, cost)."""
+    return blas_occluded(node_bounds, node_child, tri_verts, 0, o, d, t_max, stack_node, 0)
 
 
 @jit_inline

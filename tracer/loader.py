@@ -1,4 +1,4 @@
-"""Read a scene from disk into :class:`SceneData`: world-space triangle meshes plus settings.
+"""Read a scene from disk into a :class:`tracer.scene_model.SceneState`.
 
 Accepted inputs: a ``tilerender/1`` JSON scene, or a single mesh file (glTF, GLB, OBJ, PLY, STL),
 which becomes a scene with a camera framing its bounds and, if nothing in it emits, a default
@@ -18,7 +18,10 @@ import trimesh
 
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
+from tracer.scene_model import Mesh, Node, SceneState, Sky, frozen_array, make_mesh
 from tracer.shapes import rectangle, shape_mesh
+
+IDENTITY = frozen_array(np.eye(4), np.float64)
 
 MESH_SUFFIXES = {".obj", ".ply", ".stl", ".gltf", ".glb"}
 MAX_SCENE_FILE_BYTES = 16 * 1024 * 1024
@@ -38,7 +41,8 @@ class MeshData:
 
 @dataclass
 class SceneData:
-    """A loaded scene, ready to compile: materials by index, meshes, camera, render settings."""
+    """A scene given as world-space meshes (a convenient way to build one in code): materials by
+    index, meshes, camera, render settings. :meth:`to_state` makes it a scene of static nodes."""
 
     camera: fmt.Camera
     render: fmt.RenderSettings
@@ -47,6 +51,23 @@ class SceneData:
     meshes: list[MeshData]
     source: str = ""
     notes: list[str] = field(default_factory=list)
+
+    def to_state(self) -> SceneState:
+        meshes, nodes = {}, {}
+        for i, m in enumerate(self.meshes):
+            key = f"{i}:{m.name}"
+            meshes[key] = make_mesh(m.vertices, m.faces, m.name)
+            nodes[i] = Node(
+                i, m.name, None, IDENTITY, "static", key, self.material_names[m.material]
+            )
+        return SceneState(
+            version=0,
+            meshes=meshes,
+            materials=dict(zip(self.material_names, self.materials, strict=True)),
+            nodes=nodes,
+            camera=self.camera,
+            render=self.render,
+        )
 
 
 def format_validation_error(error: pydantic.ValidationError) -> str:
@@ -78,20 +99,6 @@ def resolve_reference(scene_dir: Path, reference: str) -> Path:
     return target
 
 
-def _validated_mesh(name: str, vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces)
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
-        raise SceneError(f"{name}: not a triangle mesh")
-    if faces.shape[0] == 0:
-        raise SceneError(f"{name}: the mesh has no triangles")
-    if not np.isfinite(vertices).all():
-        raise SceneError(f"{name}: the mesh has NaN or infinite vertex coordinates")
-    if faces.min() < 0 or faces.max() >= vertices.shape[0]:
-        raise SceneError(f"{name}: a face refers to a vertex that does not exist")
-    return vertices, faces.astype(np.int64)
-
-
 def _load_trimesh(path: Path):
     logging.getLogger("trimesh").setLevel(logging.ERROR)
     try:
@@ -100,7 +107,7 @@ def _load_trimesh(path: Path):
         raise SceneError(f"{path.name}: cannot read mesh file ({exc})") from None
 
 
-def load_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
+def load_mesh_file(path: Path) -> Mesh:
     """All triangles of a mesh file in its own coordinates (glTF node transforms applied)."""
     loaded = _load_trimesh(path)
     if isinstance(loaded, trimesh.Scene):
@@ -109,22 +116,10 @@ def load_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
         loaded = loaded.to_geometry()
     if not isinstance(loaded, trimesh.Trimesh):
         raise SceneError(f"{path.name}: the file holds no triangles (points or lines only?)")
-    return _validated_mesh(path.name, loaded.vertices, loaded.faces)
+    return make_mesh(loaded.vertices, loaded.faces, path.name)
 
 
-def transform_mesh(vertices: np.ndarray, faces: np.ndarray, matrix: np.ndarray):
-    """Apply an affine 4x4 matrix; a mirroring transform reverses winding to keep front faces."""
-    with np.errstate(all="ignore"):  # overflow is reported below, as an error
-        world = vertices @ matrix[:3, :3].T + matrix[:3, 3]
-        mirrored = np.linalg.det(matrix[:3, :3]) < 0.0
-    if not np.isfinite(world).all():
-        raise SceneError("a transform moves vertices to infinity")
-    if mirrored:
-        faces = faces[:, ::-1]
-    return world, faces
-
-
-def load_scene(path: str | Path) -> SceneData:
+def load_scene(path: str | Path) -> SceneState:
     """Load a JSON scene or a single mesh file."""
     path = Path(path)
     if not path.exists():
@@ -171,29 +166,42 @@ def _reject_duplicate_keys(pairs: list[tuple[str, object]]) -> dict:
     return result
 
 
-def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "") -> SceneData:
-    """Resolve a validated scene model's meshes (relative to ``scene_dir``) into world space."""
-    names = list(scene.materials)
-    index = {name: i for i, name in enumerate(names)}
-    meshes = []
+def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "") -> SceneState:
+    """The state a validated scene model describes, meshes resolved relative to ``scene_dir``.
+
+    Objects become nodes (ids in file order, parents by name); objects with the same shape
+    share one mesh (instancing).
+    """
+    names = {obj.name: i for i, obj in enumerate(scene.objects) if obj.name}
+    meshes: dict[str, Mesh] = {}
+    nodes: dict[int, Node] = {}
     for i, obj in enumerate(scene.objects):
         label = obj.name or f"objects[{i}]"
         if isinstance(obj.shape, fmt.MeshFile):
-            vertices, faces = load_mesh_file(resolve_reference(scene_dir, obj.shape.path))
+            key = f"file:{obj.shape.path}"
+            if key not in meshes:
+                meshes[key] = load_mesh_file(resolve_reference(scene_dir, obj.shape.path))
         else:
-            vertices, faces = shape_mesh(obj.shape)
-        try:
-            vertices, faces = transform_mesh(vertices, faces, obj.transform.to_matrix())
-        except SceneError as exc:
-            raise SceneError(f"{label}: {exc}") from None
-        meshes.append(MeshData(label, vertices, faces, index[obj.material]))
-    return SceneData(
+            key = f"shape:{obj.shape.model_dump_json()}"
+            if key not in meshes:
+                meshes[key] = make_mesh(*shape_mesh(obj.shape), label)
+        parent = None
+        if obj.parent is not None:
+            if obj.parent not in names:
+                raise SceneError(f"{label}: parent {obj.parent!r} is not an object of the scene")
+            parent = names[obj.parent]
+            if parent >= i:
+                raise SceneError(f"{label}: a parent must come before its children")
+        transform = frozen_array(obj.transform.to_matrix(), np.float64)
+        nodes[i] = Node(i, obj.name or label, parent, transform, obj.kind, key, obj.material)
+    return SceneState(
+        version=0,
+        meshes=meshes,
+        materials=dict(scene.materials),
+        nodes=nodes,
         camera=scene.camera,
         render=scene.render,
-        material_names=names,
-        materials=[scene.materials[n] for n in names],
-        meshes=meshes,
-        source=source,
+        sky=Sky(tuple(scene.sky.radiance)),
     )
 
 
@@ -217,38 +225,51 @@ def _gltf_material(material) -> fmt.DiffuseMaterial:
     )
 
 
-def scene_from_mesh_file(path: Path) -> SceneData:
+def scene_from_mesh_file(path: Path) -> SceneState:
     """A scene made of one mesh file: its own materials, a framing camera, a default light."""
     loaded = _load_trimesh(path)
-    materials: list[fmt.DiffuseMaterial] = []
-    meshes: list[MeshData] = []
     if isinstance(loaded, trimesh.Trimesh):
-        parts = [(path.stem, np.eye(4), loaded)]
+        parts = [(path.stem, np.eye(4), path.stem, loaded)]
     elif isinstance(loaded, trimesh.Scene):
         parts = []
         for node in loaded.graph.nodes_geometry:
             matrix, geometry_name = loaded.graph[node]
             geometry = loaded.geometry[geometry_name]
             if isinstance(geometry, trimesh.Trimesh):
-                parts.append((str(node), np.asarray(matrix, dtype=np.float64), geometry))
+                parts.append((str(node), np.asarray(matrix, np.float64), geometry_name, geometry))
     else:
         parts = []
     if not parts:
         raise SceneError(f"{path.name}: the file contains no triangle meshes")
-    for name, matrix, geometry in parts:
-        vertices, faces = _validated_mesh(f"{path.name}:{name}", geometry.vertices, geometry.faces)
-        vertices, faces = transform_mesh(vertices, faces, matrix)
-        materials.append(_gltf_material(getattr(geometry.visual, "material", None)))
-        meshes.append(MeshData(name, vertices, faces, len(materials) - 1))
-
-    lo = np.min([m.vertices.min(axis=0) for m in meshes], axis=0)
-    hi = np.max([m.vertices.max(axis=0) for m in meshes], axis=0)
-    camera = framing_camera(lo, hi)
-    names = [f"{path.stem}-{i}" for i in range(len(materials))]
-    data = SceneData(camera, fmt.RenderSettings(), names, materials, meshes, source=str(path))
-    if not any(max(m.emission) > 0.0 for m in materials):
-        add_default_light(data, lo, hi)
-    return data
+    meshes: dict[str, Mesh] = {}
+    materials: dict[str, fmt.DiffuseMaterial] = {}
+    nodes: dict[int, Node] = {}
+    corners = []
+    for i, (name, matrix, geometry_name, geometry) in enumerate(parts):
+        key = f"{path.name}:{geometry_name}"
+        if key not in meshes:
+            meshes[key] = make_mesh(geometry.vertices, geometry.faces, f"{path.name}:{name}")
+            materials[key] = _gltf_material(getattr(geometry.visual, "material", None))
+        try:
+            transform = fmt.Transform(matrix=tuple(map(tuple, matrix))).to_matrix()
+        except pydantic.ValidationError as exc:
+            raise SceneError(f"{path.name}:{name}: {format_validation_error(exc)}") from None
+        nodes[i] = Node(i, name, None, frozen_array(transform, np.float64), "static", key, key)
+        v = meshes[key].vertices @ transform[:3, :3].T + transform[:3, 3]
+        corners += [v.min(axis=0), v.max(axis=0)]
+    lo = np.min(corners, axis=0)
+    hi = np.max(corners, axis=0)
+    state = SceneState(
+        version=0,
+        meshes=meshes,
+        materials=materials,
+        nodes=nodes,
+        camera=framing_camera(lo, hi),
+        render=fmt.RenderSettings(),
+    )
+    if not any(max(m.emission) > 0.0 for m in materials.values()):
+        state = with_default_light(state, lo, hi)
+    return state
 
 
 def framing_camera(lo: np.ndarray, hi: np.ndarray, vfov_deg: float = 40.0) -> fmt.Camera:
@@ -265,26 +286,38 @@ def framing_camera(lo: np.ndarray, hi: np.ndarray, vfov_deg: float = 40.0) -> fm
     )
 
 
-def add_default_light(data: SceneData, lo: np.ndarray, hi: np.ndarray) -> None:
-    """Add a square area light above the camera side of the bounds, facing their centre."""
+DEFAULT_LIGHT = "default-light"
+
+
+def with_default_light(state: SceneState, lo: np.ndarray, hi: np.ndarray) -> SceneState:
+    """The state plus a square area light above the camera side of the bounds, facing their
+    centre (a node and a material both named ``default-light``)."""
     center = 0.5 * (lo + hi)
     radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-30)
     toward = np.array([0.3, 1.0, 0.6]) / np.linalg.norm([0.3, 1.0, 0.6])
-    position = center + 2.0 * radius * toward
     normal = -toward  # the rectangle faces +z; rotate +z onto the normal
     z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(z, normal)
     angle = math.acos(float(np.clip(np.dot(z, normal), -1.0, 1.0)))
-    rotation = trimesh.transformations.rotation_matrix(angle, axis)
-    vertices, faces = rectangle(radius, radius)
-    vertices = vertices @ rotation[:3, :3].T + position
-    data.material_names.append("default-light")
-    data.materials.append(
-        fmt.DiffuseMaterial(
-            reflectance=(0.0, 0.0, 0.0),
-            emission=(DEFAULT_LIGHT_RADIANCE,) * 3,
-            two_sided=False,
-        )
+    matrix = trimesh.transformations.rotation_matrix(angle, np.cross(z, normal))
+    matrix[:3, 3] = center + 2.0 * radius * toward
+    node_id = max(state.nodes) + 1
+    light = Node(
+        node_id, DEFAULT_LIGHT, None, frozen_array(matrix, np.float64), "static", DEFAULT_LIGHT,
+        DEFAULT_LIGHT,
+    )  # fmt: skip
+    material = fmt.DiffuseMaterial(
+        reflectance=(0.0, 0.0, 0.0), emission=(DEFAULT_LIGHT_RADIANCE,) * 3, two_sided=False
     )
-    data.meshes.append(MeshData("default-light", vertices, faces, len(data.materials) - 1))
-    data.notes.append("no emitter in the file: added a default area light")
+    return SceneState(
+        version=state.version,
+        meshes={
+            **state.meshes,
+            DEFAULT_LIGHT: make_mesh(*rectangle(radius, radius), DEFAULT_LIGHT),
+        },
+        materials={**state.materials, DEFAULT_LIGHT: material},
+        nodes={**state.nodes, node_id: light},
+        camera=state.camera,
+        render=state.render,
+        sky=state.sky,
+        animation=state.animation,
+    )

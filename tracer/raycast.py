@@ -59,6 +59,7 @@ def _closest(
     node_bounds = borrowed(node_bounds)
     node_child = borrowed(node_child)
     tri_verts = borrowed(tri_verts)
+    tri_prim = borrowed(tri_prim)
     stack_node = borrowed(stack_node)
     stack_t = borrowed(stack_t)
     n = origins.shape[0]
@@ -67,7 +68,7 @@ def _closest(
             o = (origins[i, 0], origins[i, 1], origins[i, 2])
             d = (directions[i, 0], directions[i, 1], directions[i, 2])
             j, t, b0, b1, b2, c = intersect(
-                node_bounds, node_child, tri_verts, o, d, t_max[i], stack_node, stack_t
+                node_bounds, node_child, tri_verts, tri_prim, o, d, t_max[i], stack_node, stack_t
             )
             cost[i] = c
             if j >= 0:
@@ -102,7 +103,7 @@ def _stacks() -> tuple[np.ndarray, np.ndarray]:
     return np.empty(size, np.int32), np.empty(size, np.float64)
 
 
-def _check_rays(origins, directions, t_max):
+def check_rays(origins, directions, t_max):
     # Contiguous and writeable: a read-only array would make numba compile another kernel.
     origins = np.require(origins, np.float64, ["C", "W"])
     directions = np.require(directions, np.float64, ["C", "W"])
@@ -136,7 +137,7 @@ def closest_hits(
     t_max : float or float array, shape (N,), optional
         Upper bound on ``t`` (default: no bound).
     """
-    origins, directions, t_max = _check_rays(origins, directions, t_max)
+    origins, directions, t_max = check_rays(origins, directions, t_max)
     n = origins.shape[0]
     hits = Hits(
         np.full(n, -1, np.int32),
@@ -166,7 +167,7 @@ def any_hits(
     threads: int | None = None,
 ) -> np.ndarray:
     """Whether each ray meets any triangle for ``t`` in (0, t_max); bool array, shape (N,)."""
-    origins, directions, t_max = _check_rays(origins, directions, t_max)
+    origins, directions, t_max = check_rays(origins, directions, t_max)
     hit = np.zeros(origins.shape[0], np.bool_)
     args = (
         bvh.node_bounds,

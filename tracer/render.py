@@ -70,16 +70,7 @@ def render_lines(
     cost = np.empty((y1 - y0, camera.width), np.int64)
     start = time.perf_counter()
     args = (
-        scene.bvh.node_bounds,
-        scene.bvh.node_child,
-        scene.bvh.tri_verts,
-        scene.tri_material,
-        scene.materials.albedo,
-        scene.materials.emission,
-        scene.materials.two_sided,
-        scene.lights.tri,
-        scene.lights.cdf,
-        scene.lights.total_power,
+        scene.arrays,
         cam,
         camera.width,
         camera.height,

@@ -144,6 +144,15 @@ class SceneObject(Strict):
     )
     material: str = Field(min_length=1)
     transform: Transform = Transform()
+    kind: Literal["static", "rigid", "deformable", "dynamic"] = Field(
+        default="static",
+        description="static: never moves (baked into one BVH); rigid: moves as a whole; "
+        "deformable: its vertices move; dynamic: its topology changes",
+    )
+    parent: str | None = Field(
+        default=None,
+        description="Name of an earlier object: this object's transform is relative to it",
+    )
 
     @field_validator("shape", mode="before")
     @classmethod
@@ -188,12 +197,19 @@ class RenderSettings(Strict):
     seed: int = Field(default=0, ge=0, lt=2**63)
 
 
+class SkySettings(Strict):
+    radiance: Radiance = Field(
+        default=(0.0, 0.0, 0.0), description="Radiance from every direction nothing blocks"
+    )
+
+
 class SceneFile(Strict):
     """A tilerender scene: objects with materials, a camera and render settings."""
 
     format: Literal["tilerender/1"] = FORMAT
     camera: Camera = Camera()
     render: RenderSettings = RenderSettings()
+    sky: SkySettings = SkySettings()
     materials: dict[str, Material] = Field(min_length=1)
     objects: list[SceneObject] = Field(min_length=1)
 

@@ -138,7 +138,8 @@ def test_info_prints_json(capsys, tiny_scene_file):
     assert report["zero_area_triangles_dropped"] == 0
     assert report["materials"] == ["grey", "lamp"]
     assert report["camera"]["width"] == 12 and report["render"]["spp"] == 2
-    assert report["bvh_nodes"] == scene.bvh.node_bounds.shape[0]
+    assert report["bvh_nodes"] == sum(pool.bounds.shape[0] for pool in scene.pools)
+    assert report["nodes"] == 3 and report["instances"] == scene.stats.instances == 1
     assert report["bounds"]["min"] == list(scene.stats.bounds_min)
 
 

@@ -8,8 +8,9 @@ from hypothesis import strategies as st
 
 from tests import naive
 from tracer import bvh, config
-from tracer.compile import compile_scene
+from tracer.compile import STATIC_KEY, compile_scene
 from tracer.loader import MeshData, SceneData
+from tracer.query import scene_hits
 from tracer.raycast import any_hits, closest_hits
 from tracer.scene_format import Camera, DiffuseMaterial, RenderSettings
 
@@ -63,11 +64,11 @@ def test_zero_area_triangles_are_dropped_and_never_hit():
     scene, n_degenerate = degenerate_scene(rng)
     assert scene.stats.degenerate_triangles == n_degenerate
     good_prim = n_degenerate
-    assert set(scene.bvh.tri_prim.tolist()) == {good_prim}
+    assert set(scene.meshes[STATIC_KEY].bvh.tri_prim.tolist()) == {good_prim}
     o, d = random_rays(rng, 100_000)
-    hits = closest_hits(scene.bvh, o, d)
-    assert set(np.unique(hits.prim).tolist()) <= {-1, good_prim}
-    assert not np.isnan(hits.t).any() and not np.isnan(hits.b).any()
+    hits = scene_hits(scene, o, d)
+    assert set(np.unique(hits.triangle).tolist()) <= {-1, good_prim}
+    assert not np.isnan(hits.t).any()
 
 
 def test_zero_area_triangles_in_a_raw_bvh_report_no_hits():

@@ -59,18 +59,20 @@ def test_no_light_leaks_where_a_box_rests_on_a_floor():
     assert render_image(scene, outside)[0].max() > 0.0
 
 
-def transformed(data: SceneData, scale: float, offset: float) -> SceneData:
+def transformed(state, scale: float, offset: float) -> SceneData:
     """The scene and its camera scaled about the origin, then moved by ``offset`` along (1,1,1)."""
     shift = np.full(3, offset)
+    names = list(state.materials)
     meshes = [
-        MeshData(m.name, m.vertices * scale + shift, m.faces, m.material) for m in data.meshes
+        MeshData(m.name, m.vertices * scale + shift, m.faces, names.index(m.material))
+        for m in state.world_meshes()
     ]
     camera = override(
-        data.camera,
-        position=tuple(np.asarray(data.camera.position) * scale + shift),
-        look_at=tuple(np.asarray(data.camera.look_at) * scale + shift),
+        state.camera,
+        position=tuple(np.asarray(state.camera.position) * scale + shift),
+        look_at=tuple(np.asarray(state.camera.look_at) * scale + shift),
     )
-    return SceneData(camera, data.render, data.material_names, data.materials, meshes)
+    return SceneData(camera, state.render, names, list(state.materials.values()), meshes)
 
 
 @pytest.mark.parametrize(("scale", "offset"), [(1e-3, 0.0), (1e4, 0.0), (1.0, 1e5)])

@@ -28,9 +28,9 @@ from tests.helpers import (
 )
 from tracer import scene_format as fmt
 from tracer.camera import camera_array, primary_ray
-from tracer.compile import compile_scene, zero_area_mask
+from tracer.compile import STATIC_KEY, compile_scene, zero_area_mask
 from tracer.errors import SceneError
-from tracer.loader import MAX_SCENE_FILE_BYTES, framing_camera, load_scene
+from tracer.loader import DEFAULT_LIGHT, MAX_SCENE_FILE_BYTES, framing_camera, load_scene
 from tracer.render import render_lines
 
 
@@ -79,11 +79,12 @@ def test_sample_scenes_load(path):
     every mesh."""
     data = load_scene(path)
     scene = compile_scene(data)
-    assert scene.stats.triangles == sum(len(m.faces) for m in data.meshes) > 0
+    assert scene.stats.triangles == sum(len(m.faces) for m in data.world_meshes()) > 0
     assert scene.stats.emissive_triangles > 0
     lo, hi = np.array(scene.stats.bounds_min), np.array(scene.stats.bounds_max)
-    for mesh in data.meshes:
-        assert (mesh.vertices >= lo).all() and (mesh.vertices <= hi).all()
+    slack = 1e-6 * np.abs(np.concatenate([lo, hi])).max()  # geometry is stored in float32
+    for mesh in data.world_meshes():
+        assert (mesh.vertices >= lo - slack).all() and (mesh.vertices <= hi + slack).all()
     assert len(scene.material_names) == len(data.materials)
 
 
@@ -96,16 +97,18 @@ def test_tiny_scene_renders(tiny_scene_file):
 
 
 def test_render_space_keeps_geometry(tmp_path):
-    """Compilation moves the scene next to the origin by a power-of-two-friendly offset, but the
-    triangles are the world triangles minus that offset, exactly (for representable data)."""
+    """Compilation stores static geometry next to the origin by a power-of-two-friendly offset,
+    but the triangles are the world triangles minus that offset, exactly (for representable
+    data)."""
     data = tiny_scene()
     data["objects"][1]["transform"] = {"translate": [1024.0, 2048.0, -512.0]}
     path = write_json(tmp_path / "far.json", data)
     loaded = load_scene(path)
     scene = compile_scene(loaded)
-    world = np.concatenate([m.vertices[m.faces].reshape(-1, 9) for m in loaded.meshes])
-    expected = (world[scene.bvh.tri_prim].reshape(-1, 3, 3) - scene.origin).astype(np.float32)
-    assert np.array_equal(scene.bvh.tri_verts.reshape(-1, 3, 3), expected)
+    world = np.concatenate([m.vertices[m.faces].reshape(-1, 9) for m in loaded.world_meshes()])
+    static = scene.meshes[STATIC_KEY].bvh
+    expected = (world[static.tri_prim].reshape(-1, 3, 3) - scene.origin).astype(np.float32)
+    assert np.array_equal(static.tri_verts.reshape(-1, 3, 3), expected)
 
 
 # --- the JSON file itself -------------------------------------------------------------------
@@ -277,7 +280,7 @@ def test_mesh_reference_loads(tmp_path):
     (tmp_path / "meshes").mkdir()
     ico(tmp_path / "meshes" / "ball.obj")
     data = load_scene(object_scene(tmp_path, "meshes/ball.obj"))
-    assert len(data.meshes[0].faces) == 80
+    assert len(data.world_meshes()[0].faces) == 80
 
 
 @pytest.mark.parametrize("reference", ["../outside.obj", "sub/../../outside.obj"])
@@ -342,7 +345,7 @@ def test_gltf_resources_may_not_leave_the_directory(tmp_path, where):
     shutil.copy(outside, scene_dir / "inside.bin")
     gltf["buffers"][0]["uri"] = "inside.bin"
     write_json(scene_dir / "model.gltf", gltf)
-    assert len(load_scene(scene_dir / "scene.json").meshes[0].faces) == 12
+    assert len(load_scene(scene_dir / "scene.json").world_meshes()[0].faces) == 12
 
 
 def test_scene_file_too_large(tmp_path):
@@ -396,8 +399,10 @@ def test_degenerate_triangles_are_dropped(tmp_path):
     scene = compile_scene(load_scene(object_scene(tmp_path, "box.obj")))
     assert scene.stats.degenerate_triangles == 3
     assert scene.stats.triangles == 12 + 3 + 2 + 2
-    assert scene.bvh.tri_prim.shape == (12 + 2 + 2,)
-    assert not np.isin(scene.bvh.tri_prim, [12, 13, 14]).any()
+    static = scene.meshes[STATIC_KEY]
+    assert static.bvh.tri_prim.shape == (12 + 2 + 2,)
+    dropped = static.owner[static.bvh.tri_prim]
+    assert not (np.isin(dropped[:, 1], [12, 13, 14]) & (dropped[:, 0] == 0)).any()
     rgb = quick_render(scene)
     assert np.isfinite(rgb).all() and rgb.max() > 0
 
@@ -465,17 +470,18 @@ def test_transforms_keep_faces_outward(tmp_path, transform, shape):
     """Loaded vertices are the transform applied to the shape, and front faces still face out:
     mirroring transforms (negative determinant) reverse the winding."""
     data = load_scene(object_scene(tmp_path, shape, transform or None))
-    mesh = data.meshes[0]
+    mesh = data.world_meshes()[0]
     m = fmt.Transform.model_validate(transform).to_matrix()
     centre = m[:3, 3]
     assert outward(mesh.vertices, mesh.faces, centre).all()
     # The vertices are the documented transform of the untransformed shape.
-    plain = load_scene(object_scene(tmp_path, shape)).meshes[0]
+    plain = load_scene(object_scene(tmp_path, shape)).world_meshes()[0]
     np.testing.assert_allclose(mesh.vertices, plain.vertices @ m[:3, :3].T + m[:3, 3], atol=1e-12)
     # And the renderer's copy (render space, leaf order) keeps that orientation.
     scene = compile_scene(data)
-    rows = scene.tri_material == scene.material_names.index("clay")
-    tri = scene.bvh.tri_verts[rows].astype(np.float64).reshape(-1, 3, 3)
+    static = scene.meshes[STATIC_KEY]
+    rows = static.tri_material == scene.material_names.index("clay")
+    tri = static.bvh.tri_verts[rows].astype(np.float64).reshape(-1, 3, 3)
     faces = np.arange(tri.shape[0] * 3).reshape(-1, 3)
     assert outward(tri.reshape(-1, 3), faces, centre - scene.origin).all()
 
@@ -526,7 +532,7 @@ def test_projection_matches_the_renderer():
 
 def light_faces(data, centre):
     """Whether the default light's triangles face ``centre`` by their winding."""
-    light = data.meshes[-1]
+    light = data.world_meshes()[-1]
     return ~outward(light.vertices, light.faces, centre)
 
 
@@ -534,15 +540,15 @@ def test_gltf_alone_is_a_scene():
     """Box.gltf (no emitter): its geometry with node transforms, its material, a camera that
     sees all of it and a one-sided default light facing it; it renders lit."""
     data = load_scene(GLTF_BOX)
-    assert len(data.meshes) == 2 and data.meshes[-1].name == "default-light"
-    assert data.notes and "default area light" in data.notes[0]
-    box = data.meshes[0]
+    meshes = data.world_meshes()
+    assert len(meshes) == 2 and meshes[-1].name == DEFAULT_LIGHT
+    box = meshes[0]
     assert len(box.faces) == 12
     lo, hi = box.vertices.min(axis=0), box.vertices.max(axis=0)
     # The file's root node turns the box's y into -z; its mesh is the unit cube.
     np.testing.assert_allclose(hi - lo, [1, 1, 1], atol=1e-6)
     assert_camera_sees(data.camera, lo, hi)
-    light = data.materials[data.meshes[-1].material]
+    light = data.materials[meshes[-1].material]
     assert max(light.emission) > 0 and light.two_sided is False
     assert light_faces(data, 0.5 * (lo + hi)).all()
     assert quick_render(compile_scene(data), 16, 12, spp=4).mean() > 0.01
@@ -559,8 +565,9 @@ def test_emissive_gltf_gets_no_default_light(tmp_path):
     )
     mesh.export(tmp_path / "lamp.glb")
     data = load_scene(tmp_path / "lamp.glb")
-    assert len(data.meshes) == 1 and not data.notes
-    material = data.materials[0]
+    meshes = data.world_meshes()
+    assert len(meshes) == 1 and meshes[0].name != DEFAULT_LIGHT
+    material = data.materials[meshes[0].material]
     assert material.emission == (2.0, 1.0, 0.5) and material.reflectance == (1.0, 0.0, 0.0)
     assert material.two_sided is False
 
@@ -574,8 +581,9 @@ def test_mesh_file_alone_is_a_scene(tmp_path, suffix):
     mesh.apply_translation([10, 20, 30])
     path = write_mesh(tmp_path / f"thing{suffix}", mesh.vertices, mesh.faces)
     data = load_scene(path)
-    assert [len(m.faces) for m in data.meshes] == [320, 2]
-    lo, hi = data.meshes[0].vertices.min(axis=0), data.meshes[0].vertices.max(axis=0)
+    meshes = data.world_meshes()
+    assert [len(m.faces) for m in meshes] == [320, 2]
+    lo, hi = meshes[0].vertices.min(axis=0), meshes[0].vertices.max(axis=0)
     np.testing.assert_allclose([lo, hi], [mesh.bounds[0], mesh.bounds[1]], rtol=1e-6)
     assert_camera_sees(data.camera, lo, hi)
     assert light_faces(data, 0.5 * (lo + hi)).all()
@@ -615,5 +623,5 @@ def test_cornell_scene_file_matches_its_json():
     data = load_scene(CORNELL)
     assert data.camera.width == raw["camera"]["width"]
     assert data.render.spp == raw["render"]["spp"]
-    assert data.material_names == list(raw["materials"])
-    assert [m.name for m in data.meshes] == [o["name"] for o in raw["objects"]]
+    assert list(data.materials) == list(raw["materials"])
+    assert [m.name for m in data.world_meshes()] == [o["name"] for o in raw["objects"]]

@@ -1,0 +1,120 @@
+"""Every array a render kernel reads, in one named tuple.
+
+Two-level acceleration (Bikker ch. 3, Reiter ch. 3-4): each mesh has a BVH in its own object
+space; instances place meshes in the world with affine transforms; a top-level BVH (TLAS) is
+built over the instances' world boxes. Mesh BVHs live in two *pools*, concatenated arrays in
+the traversal layout of ``tracer.bvh``: pool 0 holds static and rigid geometry (rarely rebuilt,
+shared between scene versions), pool 1 deformable and dynamic meshes (small, rebuilt or refitted
+per version). A field that differs per pool is a pair ``(pool0, pool1)`` indexed by the
+instance's pool.
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+
+from tracer.borrow import borrowed
+from tracer.jit import jit_inline
+
+STABLE_POOL = 0
+VOLATILE_POOL = 1
+
+
+class SceneArrays(NamedTuple):
+    blas_bounds: tuple[np.ndarray, np.ndarray]
+    """float32 (N, 12) per pool: interior nodes, both child boxes (tracer.bvh layout)."""
+    blas_child: tuple[np.ndarray, np.ndarray]
+    """int32 (N, 2) per pool: child references, pool-global node and triangle indices."""
+    tri_verts: tuple[np.ndarray, np.ndarray]
+    """float32 (M, 9) per pool: object-space triangles in leaf order."""
+    tri_prim: tuple[np.ndarray, np.ndarray]
+    """int32 (M,) per pool: each row's triangle index within its mesh."""
+    tri_material: tuple[np.ndarray, np.ndarray]
+    """int32 (M,) per pool: material of each row (used when the instance has none of its own)."""
+    inst_pool: np.ndarray
+    """int32 (I,): pool of each instance's mesh."""
+    inst_root: np.ndarray
+    """int32 (I,): root node of the instance's mesh in its pool."""
+    inst_xform: np.ndarray
+    """float64 (I, 12): object -> world (tracer.transforms layout)."""
+    inst_inv: np.ndarray
+    """float64 (I, 12): world -> object."""
+    inst_material: np.ndarray
+    """int32 (I,): the instance's material, or -1 to use the triangles' own."""
+    inst_identity: np.ndarray
+    """bool (I,): the instance's transform is exactly the identity (kernels skip it)."""
+    inst_rt: np.ndarray
+    """float64 (I, 2): ``(c1, c0)`` of ``transforms.round_trip_bound`` per instance."""
+    tlas_bounds: np.ndarray
+    """float32 (K, 12): the top-level BVH over instance world boxes."""
+    tlas_child: np.ndarray
+    """int32 (K, 2): its child references; leaves index ``tlas_inst``."""
+    tlas_inst: np.ndarray
+    """int32 (I,): instance indices in top-level leaf order."""
+    mat_albedo: np.ndarray
+    """float32 (Q, 3)."""
+    mat_emission: np.ndarray
+    """float32 (Q, 3)."""
+    mat_two_sided: np.ndarray
+    """bool (Q,)."""
+    light_inst: np.ndarray
+    """int32 (L,): instance of each emissive triangle."""
+    light_tri: np.ndarray
+    """int32 (L,): its row in the instance's pool."""
+    light_cdf: np.ndarray
+    """float64 (L,): selection CDF (by power), last entry exactly 1."""
+    light_total: np.ndarray
+    """float64 (1,): sum of the selection weights."""
+    sky: np.ndarray
+    """float64 (3,): radiance from every direction nothing blocks."""
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of every array (both pools)."""
+        total = 0
+        for value in self:
+            for array in value if isinstance(value, tuple) else (value,):
+                total += array.nbytes
+        return total
+
+
+@jit_inline
+def pick(pair, pool):
+    """``pair[pool]`` for a pool index known only at run time, as a select rather than numba's
+    tuple indexing (which goes through a zero-filled stack copy of the tuple on every use)."""
+    return pair[0] if pool == 0 else pair[1]
+
+
+@jit_inline
+def _pair(pair):
+    return (borrowed(pair[0]), borrowed(pair[1]))
+
+
+@jit_inline
+def borrow_scene(s):
+    """The same arrays as borrowed views (tracer.borrow): call once at a kernel's entry."""
+    return SceneArrays(
+        _pair(s.blas_bounds),
+        _pair(s.blas_child),
+        _pair(s.tri_verts),
+        _pair(s.tri_prim),
+        _pair(s.tri_material),
+        borrowed(s.inst_pool),
+        borrowed(s.inst_root),
+        borrowed(s.inst_xform),
+        borrowed(s.inst_inv),
+        borrowed(s.inst_material),
+        borrowed(s.inst_identity),
+        borrowed(s.inst_rt),
+        borrowed(s.tlas_bounds),
+        borrowed(s.tlas_child),
+        borrowed(s.tlas_inst),
+        borrowed(s.mat_albedo),
+        borrowed(s.mat_emission),
+        borrowed(s.mat_two_sided),
+        borrowed(s.light_inst),
+        borrowed(s.light_tri),
+        borrowed(s.light_cdf),
+        borrowed(s.light_total),
+        borrowed(s.sky),
+    )
