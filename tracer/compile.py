@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from tracer import bvh as bvh_module
+from tracer import bvh_update, config
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 from tracer.jit import jit
@@ -68,6 +69,9 @@ class MeshAccel:
     lo: np.ndarray
     hi: np.ndarray
     zero_area: np.ndarray
+    sah_reference: np.ndarray | None = None
+    """float64 (N,): each BVH node's normalised SAH cost when it was last built (for selective
+    rebuilds after refits, ``tracer.bvh_update``)."""
     owner: np.ndarray | None = None
     """For the baked static mesh, int32 (T, 2) per triangle (mesh order): the scene node it came
     from and its index in that node's mesh. ``None`` for user meshes."""
@@ -203,12 +207,27 @@ def _accel(source, tri_verts, center, zero_area, per_triangle_material, label) -
     accel = bvh_module.to_traversal(bvh_module.build(tri_verts, valid), tri_verts)
     material = per_triangle_material[accel.tri_prim].astype(np.int32)
     v = accel.tri_verts.reshape(-1, 3).astype(np.float64)
-    return MeshAccel(source, accel, center, material, v.min(axis=0), v.max(axis=0), zero_area)
+    return MeshAccel(
+        source,
+        accel,
+        center,
+        material,
+        v.min(axis=0),
+        v.max(axis=0),
+        zero_area,
+        sah_reference=bvh_update.sah_costs(accel),
+    )
 
 
-def mesh_accel(key: str, mesh: Mesh, previous: MeshAccel | None) -> MeshAccel:
-    """The BVH of a user mesh: reused if built from this very mesh, refitted if only its
-    vertices moved (same faces array, same zero-area triangles), else built."""
+def mesh_accel(
+    key: str,
+    mesh: Mesh,
+    previous: MeshAccel | None,
+    rebuild_threshold: float = config.BVH_REBUILD_THRESHOLD,
+) -> MeshAccel:
+    """The BVH of a user mesh: reused if built from this very mesh; if only its vertices moved
+    (same faces array, same zero-area triangles) refitted, with the subtrees that degraded past
+    ``rebuild_threshold`` rebuilt (``tracer.bvh_update``); else built."""
     if previous is not None and previous.source is mesh:
         return previous
     center, tri_verts = _centered_triangles(mesh.vertices, mesh.faces, f"mesh {key!r}")
@@ -220,10 +239,22 @@ def mesh_accel(key: str, mesh: Mesh, previous: MeshAccel | None) -> MeshAccel:
         and previous.source.faces is mesh.faces
         and np.array_equal(previous.zero_area, zero_area)
     ):
-        moved = bvh_module.refit(previous.bvh, tri_verts[previous.bvh.tri_prim])
-        v = moved.tri_verts.reshape(-1, 3).astype(np.float64)
+        moved = bvh_update.update(
+            previous.bvh,
+            tri_verts[previous.bvh.tri_prim],
+            previous.sah_reference,
+            rebuild_threshold,
+        )
+        v = moved.bvh.tri_verts.reshape(-1, 3).astype(np.float64)
         return MeshAccel(
-            mesh, moved, center, previous.tri_material, v.min(axis=0), v.max(axis=0), zero_area
+            mesh,
+            moved.bvh,
+            center,
+            previous.tri_material,
+            v.min(axis=0),
+            v.max(axis=0),
+            zero_area,
+            sah_reference=moved.reference,
         )
     return _accel(mesh, tri_verts, center, zero_area, no_material, f"mesh {key!r}")
 
@@ -376,9 +407,16 @@ def _pool_of(state: SceneState) -> dict[str, int]:
     return pools
 
 
-def compile_scene(scene, previous: CompiledScene | None = None) -> CompiledScene:
+def compile_scene(
+    scene,
+    previous: CompiledScene | None = None,
+    rebuild_threshold: float = config.BVH_REBUILD_THRESHOLD,
+) -> CompiledScene:
     """Compile a :class:`SceneState` (or a ``tracer.loader.SceneData``), reusing what it can
-    of ``previous`` (the compiled form of an earlier version of the same scene)."""
+    of ``previous`` (the compiled form of an earlier version of the same scene).
+
+    ``rebuild_threshold`` decides what deformed meshes get (``tracer.bvh_update``): 0 rebuilds
+    them, ``math.inf`` only refits them, the default refits and rebuilds degraded subtrees."""
     state = scene.to_state() if hasattr(scene, "to_state") else scene
     if not state.geometry_nodes():
         raise SceneError("the scene has no objects")
@@ -398,7 +436,7 @@ def compile_scene(scene, previous: CompiledScene | None = None) -> CompiledScene
             meshes[STATIC_KEY] = baked
     pool_of = _pool_of(state)
     for key in sorted(pool_of):
-        meshes[key] = mesh_accel(key, state.meshes[key], old_meshes.get(key))
+        meshes[key] = mesh_accel(key, state.meshes[key], old_meshes.get(key), rebuild_threshold)
 
     # Pools.
     stable_keys = ([STATIC_KEY] if STATIC_KEY in meshes else []) + sorted(

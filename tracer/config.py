@@ -11,6 +11,10 @@ BVH_MAX_LEAF = 4
 """Most triangles in one leaf. Leaves are never larger: the builder forces a split instead."""
 BVH_TRAVERSAL_COST = 1.0
 BVH_INTERSECT_COST = 1.0
+BVH_REBUILD_THRESHOLD = 1.3
+"""After a refit, subtrees whose normalised SAH cost grew past this factor of its value when
+they were built are rebuilt (Reiter's 1.3; see tracer.bvh_update). 0 = always rebuild the
+whole tree, ``math.inf`` = only refit."""
 BVH_MAX_BUILD_DEPTH = 48
 """Below this depth the builder stops trusting SAH and splits at the index median, which bounds
 the tree depth (and the traversal stack) for adversarial inputs such as collinear centroids."""
