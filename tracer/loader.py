@@ -17,8 +17,25 @@ import pydantic
 import trimesh
 
 from tracer import scene_format as fmt
+from tracer.animation import (
+    camera_at,
+    frame_time,
+    matrix_to_trs,
+    node_transform,
+    quaternion_from_euler_xyz,
+)
 from tracer.errors import SceneError
-from tracer.scene_model import Mesh, Node, SceneState, Sky, frozen_array, make_mesh
+from tracer.scene_model import (
+    Animation,
+    CameraKey,
+    Mesh,
+    Node,
+    NodeKey,
+    SceneState,
+    Sky,
+    frozen_array,
+    make_mesh,
+)
 from tracer.shapes import rectangle, shape_mesh
 
 IDENTITY = frozen_array(np.eye(4), np.float64)
@@ -170,9 +187,18 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
     """The state a validated scene model describes, meshes resolved relative to ``scene_dir``.
 
     Objects become nodes (ids in file order, parents by name); objects with the same shape
-    share one mesh (instancing).
+    share one mesh (instancing). With an ``animation`` section the state is posed at frame 0:
+    an animated object's transform, and the camera if it is animated, are the animation's
+    values at time 0 (see :func:`animation_from_file`).
     """
     names = {obj.name: i for i, obj in enumerate(scene.objects) if obj.name}
+    animation = animation_from_file(scene)
+    camera = scene.camera
+    start = 0.0
+    if animation is not None:
+        start = frame_time(animation, 0)
+        if animation.camera:
+            camera = camera_at(animation.camera, start, scene.camera)
     meshes: dict[str, Mesh] = {}
     nodes: dict[int, Node] = {}
     for i, obj in enumerate(scene.objects):
@@ -192,17 +218,173 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
             parent = names[obj.parent]
             if parent >= i:
                 raise SceneError(f"{label}: a parent must come before its children")
-        transform = frozen_array(obj.transform.to_matrix(), np.float64)
+        if animation is not None and i in animation.nodes:
+            matrix = node_transform(animation.nodes[i], start)
+        else:
+            matrix = obj.transform.to_matrix()
+        transform = frozen_array(matrix, np.float64)
         nodes[i] = Node(i, obj.name or label, parent, transform, obj.kind, key, obj.material)
     return SceneState(
         version=0,
         meshes=meshes,
         materials=dict(scene.materials),
         nodes=nodes,
-        camera=scene.camera,
+        camera=camera,
         render=scene.render,
         sky=Sky(tuple(scene.sky.radiance)),
+        animation=animation,
     )
+
+
+def animation_from_file(scene: fmt.SceneFile) -> Animation | None:
+    """The scene's ``animation`` section with objects resolved to node ids (file order) and every
+    key completed: a field a key leaves out is the object's own transform component (translate,
+    rotation, scale; a ``matrix`` transform is split into them) or the scene camera's value.
+
+    Raises SceneError for an object that does not exist, is named more than once or is static;
+    for a matrix that cannot be split when a key needs its parts; for a scale that changes sign
+    between keys (it would pass through zero); and for a camera that is invalid at a key or at
+    any frame between keys.
+    """
+    section = scene.animation
+    if section is None:
+        return None
+    ids: dict[str, list[int]] = {}
+    for i, obj in enumerate(scene.objects):
+        if obj.name:
+            ids.setdefault(obj.name, []).append(i)
+    tracks: dict[int, tuple[NodeKey, ...]] = {}
+    for name, keys in section.objects.items():
+        found = ids.get(name, [])
+        if not found:
+            known = sorted(ids)
+            listed = ", ".join(known[:10]) + (", ..." if len(known) > 10 else "")
+            raise SceneError(
+                f"animation: no object is named {name!r} (named objects: {listed or 'none'})"
+            )
+        if len(found) > 1:
+            raise SceneError(
+                f"animation: {len(found)} objects are named {name!r}; an animated object needs "
+                "a name of its own"
+            )
+        obj = scene.objects[found[0]]
+        if obj.kind == "static":
+            raise SceneError(
+                f"animation: object {name!r} is static, and static objects cannot move; "
+                'give it "kind": "rigid"'
+            )
+        tracks[found[0]] = _object_track(f"animation.objects.{name}", obj.transform, keys)
+    camera = () if section.camera is None else _camera_track(section.camera, scene.camera)
+    animation = Animation(
+        fps=float(section.fps),
+        frames=section.frames,
+        nodes=dict(sorted(tracks.items())),
+        camera=camera,
+    )
+    _check_camera_between_keys(animation, scene.camera)
+    return animation
+
+
+def _transform_parts(where: str, transform: fmt.Transform):
+    """``(translate, rotation quaternion, scale)`` of a file transform."""
+    if transform.matrix is None:
+        scale = np.broadcast_to(np.asarray(transform.scale, dtype=np.float64), (3,))
+        return (
+            tuple(transform.translate),
+            quaternion_from_euler_xyz(transform.rotate),
+            tuple(float(c) for c in scale),
+        )
+    try:
+        return matrix_to_trs(transform.matrix)
+    except SceneError:
+        raise SceneError(
+            f"{where}: a key leaves out translate, rotation or scale, but the object's transform "
+            "matrix shears and cannot be split into them; give all three in every key"
+        ) from None
+
+
+def _object_track(
+    where: str, transform: fmt.Transform, keys: list[fmt.ObjectKeyframe]
+) -> tuple[NodeKey, ...]:
+    parts = None
+    result = []
+    for key in keys:
+        no_rotation = key.rotate is None and key.rotation is None
+        if parts is None and (key.translate is None or key.scale is None or no_rotation):
+            parts = _transform_parts(where, transform)
+        translate = parts[0] if key.translate is None else key.translate
+        if key.rotation is not None:
+            rotation = key.rotation
+        elif key.rotate is not None:
+            rotation = quaternion_from_euler_xyz(key.rotate)
+        else:
+            rotation = parts[1]
+        scale = parts[2] if key.scale is None else np.broadcast_to(key.scale, (3,))
+        result.append(
+            NodeKey(
+                float(key.time),
+                tuple(float(c) for c in translate),
+                tuple(float(c) for c in rotation),
+                tuple(float(c) for c in scale),
+            )
+        )
+    scales = np.array([key.scale for key in result])
+    flips = np.sign(scales[1:]) != np.sign(scales[:-1])
+    if flips.any():
+        i, axis = np.argwhere(flips)[0]
+        raise SceneError(
+            f"{where}: the {'xyz'[axis]} scale changes sign between keys {i} and {i + 1}, so "
+            "between them it would pass through zero (a singular transform)"
+        )
+    with np.errstate(all="ignore"):
+        smallest = np.prod(np.abs(scales).min(axis=0))
+        largest = np.prod(np.abs(scales).max(axis=0))
+    if not (smallest > 0.0 and np.isfinite(largest)):
+        raise SceneError(f"{where}: scales so small or so large make the transform singular")
+    return tuple(result)
+
+
+def _camera_track(keys: list[fmt.CameraKeyframe], base: fmt.Camera) -> tuple[CameraKey, ...]:
+    result = []
+    for i, key in enumerate(keys):
+        values = {
+            name: getattr(base, name) if getattr(key, name) is None else getattr(key, name)
+            for name in ("position", "look_at", "up", "vfov_deg")
+        }
+        try:
+            fmt.Camera(**values, width=base.width, height=base.height)
+        except pydantic.ValidationError as exc:
+            problem = exc.errors()[0]["msg"].removeprefix("Value error, ")
+            raise SceneError(f"animation.camera.{i} (time {key.time}): {problem}") from None
+        result.append(
+            CameraKey(
+                float(key.time),
+                tuple(float(c) for c in values["position"]),
+                tuple(float(c) for c in values["look_at"]),
+                tuple(float(c) for c in values["up"]),
+                float(values["vfov_deg"]),
+            )
+        )
+    return tuple(result)
+
+
+def _check_camera_between_keys(animation: Animation, base: fmt.Camera) -> None:
+    """Every frame between two camera keys gives a valid camera (the keys themselves are valid,
+    but interpolating them can make, say, position meet look_at)."""
+    keys = animation.camera
+    if len(keys) < 2:
+        return
+    key_times = {key.time for key in keys}
+    for frame in range(animation.frames):
+        time = frame_time(animation, frame)
+        if time >= keys[-1].time:
+            break
+        if time > keys[0].time and time not in key_times:
+            try:
+                camera_at(keys, time, base)
+            except SceneError as exc:
+                message = f"animation.camera: frame {frame} is not a valid view ({exc})"
+                raise SceneError(message) from None
 
 
 def _gltf_material(material) -> fmt.DiffuseMaterial:
