@@ -12,6 +12,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from tracer import config
 from tracer.commit_codec import decode_commit, decode_state
 from tracer.compile import CompiledScene, compile_scene
 from tracer.errors import SceneError
@@ -26,8 +27,15 @@ KEEP_VERSIONS = 2
 class SceneReplica:
     """A scene at a version, kept compiled. Not thread-safe: one owner applies commits."""
 
-    def __init__(self, snapshot: SceneState | bytes, keep: int = KEEP_VERSIONS):
+    def __init__(
+        self,
+        snapshot: SceneState | bytes,
+        keep: int = KEEP_VERSIONS,
+        rebuild_threshold: float = config.BVH_REBUILD_THRESHOLD,
+    ):
+        """``rebuild_threshold``: what deformed meshes get (``tracer.compile.compile_scene``)."""
         self._keep = max(1, keep)
+        self._rebuild_threshold = rebuild_threshold
         self._compiled: OrderedDict[int, CompiledScene] = OrderedDict()
         self.reset(snapshot)
 
@@ -72,7 +80,7 @@ class SceneReplica:
                     f"replica at version {self.version} cannot apply commit {commit.version}"
                 )
             state = apply_commit(self.state, commit)
-            compiled = compile_scene(state, previous=self.current)
+            compiled = compile_scene(state, self.current, self._rebuild_threshold)
             self._compiled[commit.version] = compiled
             while len(self._compiled) > self._keep:
                 self._compiled.popitem(last=False)
