@@ -161,6 +161,33 @@ def render_space_origin(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.round(center / grid) * grid
 
 
+@jit
+def _zero_area_screen(tri_verts):
+    """Per triangle: a repeated vertex (degenerate outright), and whether float64 cannot rule
+    out collinearity (a cross product tiny against the edges)."""
+    n = tri_verts.shape[0]
+    repeated = np.zeros(n, np.bool_)
+    candidate = np.zeros(n, np.bool_)
+    for i in range(n):
+        p = tri_verts[i]
+        same01 = p[0] == p[3] and p[1] == p[4] and p[2] == p[5]
+        same12 = p[3] == p[6] and p[4] == p[7] and p[5] == p[8]
+        same20 = p[6] == p[0] and p[7] == p[1] and p[8] == p[2]
+        if same01 or same12 or same20:
+            repeated[i] = True
+            continue
+        a0 = np.float64(p[3]) - np.float64(p[0])
+        a1 = np.float64(p[4]) - np.float64(p[1])
+        a2 = np.float64(p[5]) - np.float64(p[2])
+        b0 = np.float64(p[6]) - np.float64(p[0])
+        b1 = np.float64(p[7]) - np.float64(p[1])
+        b2 = np.float64(p[8]) - np.float64(p[2])
+        size = max(abs(a1 * b2 - a2 * b1), max(abs(a2 * b0 - a0 * b2), abs(a0 * b1 - a1 * b0)))
+        scale = max(abs(a0), max(abs(a1), abs(a2))) * max(abs(b0), max(abs(b1), abs(b2)))
+        candidate[i] = size <= 1e-9 * scale
+    return repeated, candidate
+
+
 def zero_area_mask(tri_verts: np.ndarray) -> np.ndarray:
     """Triangles whose float32 vertices are exactly collinear (or repeated).
 
@@ -169,18 +196,8 @@ def zero_area_mask(tri_verts: np.ndarray) -> np.ndarray:
     decided exactly, with rational arithmetic on the float32 values: float64 alone is not exact
     when one triangle mixes tiny and ordinary coordinates.
     """
-    v = tri_verts.astype(np.float64).reshape(-1, 3, 3)
-    repeated = (
-        np.all(v[:, 0] == v[:, 1], axis=1)
-        | np.all(v[:, 1] == v[:, 2], axis=1)
-        | np.all(v[:, 2] == v[:, 0], axis=1)
-    )
-    e1 = v[:, 1] - v[:, 0]
-    e2 = v[:, 2] - v[:, 0]
-    size = np.abs(np.cross(e1, e2)).max(axis=1)
-    scale = np.abs(e1).max(axis=1) * np.abs(e2).max(axis=1)
-    mask = repeated.copy()
-    for i in np.flatnonzero((size <= 1e-9 * scale) & ~repeated):
+    mask, candidate = _zero_area_screen(np.ascontiguousarray(tri_verts, dtype=np.float32))
+    for i in np.flatnonzero(candidate):
         p = [[Fraction(float(x)) for x in vertex] for vertex in tri_verts[i].reshape(3, 3)]
         a = [p[1][k] - p[0][k] for k in range(3)]
         b = [p[2][k] - p[0][k] for k in range(3)]
@@ -190,14 +207,38 @@ def zero_area_mask(tri_verts: np.ndarray) -> np.ndarray:
     return mask
 
 
+@jit
+def _bounds(points):
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(points.shape[0]):
+        for k in range(3):
+            x = np.float64(points[i, k])
+            if x < lo[k]:
+                lo[k] = x
+            if x > hi[k]:
+                hi[k] = x
+    return lo, hi
+
+
+@jit
+def _gather_centered(vertices, faces, center):
+    """float32 (F, 9): each face's vertices minus ``center`` (computed in float64, rounded once)."""
+    out = np.empty((faces.shape[0], 9), np.float32)
+    for f in range(faces.shape[0]):
+        for c in range(3):
+            v = faces[f, c]
+            for k in range(3):
+                out[f, 3 * c + k] = np.float32(vertices[v, k] - center[k])
+    return out
+
+
 def _centered_triangles(vertices: np.ndarray, faces: np.ndarray, label: str):
-    lo = vertices.min(axis=0)
-    hi = vertices.max(axis=0)
+    lo, hi = _bounds(vertices)
     if not (np.isfinite(hi - lo).all() and float(np.max(hi - lo)) < FLOAT32_SAFE_EXTENT):
         raise SceneError(f"{label}: the mesh is too large for float32 coordinates")
     center = render_space_origin(lo, hi)
-    tri_verts = (vertices[faces] - center).reshape(-1, 9).astype(np.float32)
-    return center, tri_verts
+    return center, _gather_centered(vertices, faces, center)
 
 
 def _accel(source, tri_verts, center, zero_area, per_triangle_material, label) -> MeshAccel:
@@ -206,14 +247,14 @@ def _accel(source, tri_verts, center, zero_area, per_triangle_material, label) -
         raise SceneError(f"{label}: every triangle of the mesh has zero area")
     accel = bvh_module.to_traversal(bvh_module.build(tri_verts, valid), tri_verts)
     material = per_triangle_material[accel.tri_prim].astype(np.int32)
-    v = accel.tri_verts.reshape(-1, 3).astype(np.float64)
+    lo, hi = _bounds(accel.tri_verts.reshape(-1, 3))
     return MeshAccel(
         source,
         accel,
         center,
         material,
-        v.min(axis=0),
-        v.max(axis=0),
+        lo,
+        hi,
         zero_area,
         sah_reference=bvh_update.sah_costs(accel),
     )
@@ -245,14 +286,14 @@ def mesh_accel(
             previous.sah_reference,
             rebuild_threshold,
         )
-        v = moved.bvh.tri_verts.reshape(-1, 3).astype(np.float64)
+        lo, hi = _bounds(moved.bvh.tri_verts.reshape(-1, 3))
         return MeshAccel(
             mesh,
             moved.bvh,
             center,
             previous.tri_material,
-            v.min(axis=0),
-            v.max(axis=0),
+            lo,
+            hi,
             zero_area,
             sah_reference=moved.reference,
         )
