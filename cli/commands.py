@@ -1,6 +1,7 @@
 """What each ``tilerender`` sub-command does."""
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -10,7 +11,7 @@ import pydantic
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from cli.main import UsageError
+from cli.main import CommandFailed, UsageError
 from tracer import numba_cache
 from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene
@@ -18,6 +19,8 @@ from tracer.errors import SceneError
 from tracer.image_io import check_output_path, write_image
 from tracer.loader import format_validation_error, load_scene
 from tracer.render import render_image, render_lines
+from tracer.scene_model import SceneState
+from tracer.threads import default_threads
 
 REPO_SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
@@ -36,15 +39,17 @@ def run(args: argparse.Namespace) -> int:
         return cmd_info(args)
     except BrokenPipeError:
         raise
-    except (SceneError, ValueError, OSError) as exc:
+    except (SceneError, ValueError, OSError) as exc:  # incl. ClusterUnreachable
         raise UsageError(str(exc).splitlines()[0]) from None
+    except RuntimeError as exc:  # ClusterError, or Ray failing to start
+        raise CommandFailed(str(exc).splitlines()[0] or type(exc).__name__) from None
 
 
 def load(path: str) -> CompiledScene:
     return compile_scene(load_scene(path))
 
 
-def settings_for(scene: CompiledScene, args: argparse.Namespace):
+def settings_for(scene: CompiledScene | SceneState, args: argparse.Namespace):
     """The scene's camera and render settings with the command line's overrides applied."""
     try:
         camera = fmt.override(scene.camera, width=args.width, height=args.height)
@@ -129,15 +134,158 @@ def tracer_version() -> str:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    """Render through the coordinator: tracer actors on Ray (embedded unless --ray-address)."""
     output = check_output_path(args.output)
     if not output.parent.is_dir():
         raise UsageError(f"{output.parent}: output directory does not exist")
-    scene = load(args.scene)
-    camera, settings = settings_for(scene, args)
-    render_to_file(
-        scene, camera, settings, [output], args.threads, args.quiet, Path(args.scene).name
-    )
+    from cluster.balance import make_balancer
+
+    make_balancer(args.balancer)  # a wrong name fails before Ray starts
+    state = load_scene(args.scene)
+    camera, settings = settings_for(state, args)
+    state = dataclasses.replace(state, camera=camera, render=settings)
+    frames = frame_selection(state, args.frames)
+    if frames is None:
+        outputs = [output]
+    else:
+        digits = max(4, len(str(frames[-1])))
+        outputs = [output.with_name(f"{output.stem}_{f:0{digits}d}{output.suffix}") for f in frames]
+    render_through_cluster(state, frames, outputs, args)
     return 0
+
+
+def frame_selection(state: SceneState, text: str | None) -> list[int] | None:
+    """The animation frames ``--frames`` selects (all by default); None for a still scene."""
+    animation = state.animation
+    if animation is None:
+        if text is not None:
+            raise UsageError("--frames: the scene has no animation")
+        return None
+    count = animation.frames
+    if text is None:
+        return list(range(count))
+    first, sep, last = text.strip().partition("-")
+    try:
+        a, b = int(first), int(last) if sep else int(first)
+    except ValueError:
+        raise UsageError(f"--frames: expected N or FIRST-LAST, got {text!r}") from None
+    if not 0 <= a <= b < count:
+        raise UsageError(f"--frames: {text!r} is not within the animation's frames 0-{count - 1}")
+    return list(range(a, b + 1))
+
+
+def render_through_cluster(
+    state: SceneState, frames: list[int] | None, outputs: list[Path], args: argparse.Namespace
+) -> None:
+    """Start (or join) Ray and the tracers, render the still or each frame, write the files."""
+    from cluster.connect import connect, disconnect
+    from cluster.coordinator import Coordinator
+    from cluster.scene_graph import SceneGraph
+
+    quiet = args.quiet
+    if not numba_cache.kernels_cached() and not quiet:
+        stderr.print("compiling render kernels (first run only; cached afterwards)...")
+    num_cpus = None
+    if args.ray_address is None and args.threads:
+        # The embedded Ray gets enough logical CPUs for every tracer to have --threads of them
+        # (a tracer that does not fit would wait for CPUs forever).
+        num_cpus = max(default_threads(), (args.tracers or 1) * args.threads)
+    connection = connect(args.ray_address, num_cpus=num_cpus)
+    try:
+        coordinator = Coordinator(
+            SceneGraph(state),
+            tracers=args.tracers,
+            cpus_per_tracer=args.threads,
+            balancer=args.balancer,
+        )
+        try:
+            if frames is None:
+                render_still(coordinator, outputs[0], args)
+            else:
+                render_frames(coordinator, frames, outputs, args)
+        finally:
+            coordinator.close()
+    finally:
+        if connection.started:
+            disconnect()
+
+
+def frame_metadata(done, args: argparse.Namespace, tracers: int) -> dict:
+    return {
+        "renderer": "tilerender",
+        "version": tracer_version(),
+        "camera": done.camera.model_dump(),
+        "render": done.settings.model_dump(),
+        "seconds": round(done.wall_seconds, 3),
+        "frame": done.frame,
+        "scene_version": done.version,
+        "tracers": tracers,
+        "balancer": args.balancer,
+    }
+
+
+def _progress(quiet: bool) -> Progress:
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} frames"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=stderr,
+        disable=quiet,
+        transient=True,
+    )
+
+
+def render_still(coordinator, output: Path, args: argparse.Namespace) -> None:
+    with _progress(args.quiet) as progress:
+        task = progress.add_task(Path(args.scene).name, total=1)
+        done = coordinator.render_frame(0)
+        progress.advance(task)
+    tracers = len(done.split)
+    write_image(output, done.rgb, frame_metadata(done, args, tracers))
+    if not args.quiet:
+        camera, spp = done.camera, done.settings.spp
+        rate = camera.width * camera.height * spp / max(done.wall_seconds, 1e-9) / 1e6
+        stderr.print(
+            f"wrote {output}: {camera.width}x{camera.height}, {spp} spp, "
+            f"{done.wall_seconds:.2f} s, {rate:.2f} M samples/s, {tracers} tracer"
+            f"{'s' if tracers != 1 else ''}, idle {done.idle_percent:.1f} %"
+        )
+
+
+def render_frames(coordinator, frames: list[int], outputs: list[Path], args) -> None:
+    """Render an animation frame by frame (pipelined), writing each as it completes."""
+    written = 0
+    start = time.perf_counter()
+    idle = []
+    try:
+        with _progress(args.quiet) as progress:
+            task = progress.add_task(Path(args.scene).name, total=len(frames))
+            for done, path in zip(coordinator.render_animation(frames), outputs, strict=True):
+                tracers = len(done.split)
+                write_image(path, done.rgb, frame_metadata(done, args, tracers))
+                written += 1
+                idle.append(done.idle_percent)
+                progress.advance(task)
+                if not args.quiet:
+                    extra = ""
+                    if done.failures or done.duplicates:
+                        extra = f", {done.failures} lost, {done.duplicates} duplicated"
+                    progress.console.print(
+                        f"frame {done.frame}: {path.name}, {done.wall_seconds:.3f} s, "
+                        f"idle {done.idle_percent:.1f} %, {tracers} tracer"
+                        f"{'s' if tracers != 1 else ''}{extra}"
+                    )
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(f"interrupted; {written} of {len(frames)} frames written") from None
+    if not args.quiet:
+        seconds = time.perf_counter() - start
+        stderr.print(
+            f"wrote {written} frames {outputs[0].name} .. {outputs[-1].name}: "
+            f"{seconds / max(written, 1):.3f} s per frame, mean idle "
+            f"{sum(idle) / max(len(idle), 1):.1f} %"
+        )
 
 
 def sample_scene_files(root: Path) -> list[Path]:

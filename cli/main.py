@@ -1,13 +1,17 @@
 """``tilerender``: render scenes from the command line.
 
-Every failure a user can cause (a bad scene, a bad option, an unwritable output) ends with one
-line on stderr and exit code 2; nothing is written. Ctrl-C exits with 130, also writing nothing.
+Every failure a user can cause (a bad scene, a bad option, an unwritable output, a Ray address
+that cannot be reached) ends with one line on stderr and exit code 2; nothing is written. A
+render the cluster cannot complete (every tracer lost) ends with one line and exit code 1.
+Ctrl-C exits with 130, writing nothing (an animation keeps the frames already written, and the
+message says how many).
 """
 
 import argparse
 import sys
 from collections.abc import Sequence
 
+EXIT_FAILED = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
@@ -16,13 +20,18 @@ tilerender: a Brigade-style path tracer.
 
 Scenes are tilerender/1 JSON files (docs/scene-format.md) or single mesh files
 (glTF, GLB, OBJ, PLY, STL), which get a framing camera and, if nothing emits,
-a default area light. Images are linear radiance; .png is written in sRGB."""
+a default area light. Images are linear radiance; .png is written in sRGB.
+`render` renders through tracer actors on Ray (docs/cluster.md): an embedded
+local Ray by default, or a cluster with --ray-address."""
 
 EPILOG = """\
 examples:
   tilerender render scenes/cornell-box/scene.json -o cornell.png
   tilerender render scenes/cornell-box/scene.json -o cornell.exr --spp 256 --seed 7
   tilerender render model.glb -o model.png --width 800 --height 600
+  tilerender render scene.json -o frame.png --tracers 2 --balancer perfect-smooth
+  tilerender render animated.json -o out.png --frames 0-23   (out_0000.png ...)
+  tilerender render scene.json -o x.exr --ray-address 10.0.0.5:6379
   tilerender samples --out renders
   tilerender info scenes/cornell-box/scene.json
   tilerender schema > scene-schema.json"""
@@ -30,6 +39,10 @@ examples:
 
 class UsageError(Exception):
     """A problem with the command line or its inputs, reported in one line."""
+
+
+class CommandFailed(Exception):
+    """A valid command that could not complete (e.g. the cluster lost every tracer)."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -77,8 +90,16 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument(
         "scene", metavar="SCENE", help="scene .json, or a .gltf/.glb/.obj/.ply/.stl"
     )
-    render.add_argument("-o", "--output", required=True, metavar="OUT", help="image to write")
+    render.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="OUT",
+        help="image to write; for an animation each frame goes to OUT with _NNNN before the "
+        "extension (out.png -> out_0000.png, out_0001.png, ...)",
+    )
     add_render_options(render)
+    add_cluster_options(render)
 
     samples = sub.add_parser(
         "samples",
@@ -113,8 +134,41 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         type=positive_int,
         help="path vertices after the camera: 1 = emitters only, 2 = direct light",
     )
-    parser.add_argument("--threads", type=positive_int, help="render threads (default: all CPUs)")
+    parser.add_argument(
+        "--threads",
+        type=positive_int,
+        help="render threads (CPUs) per tracer (default: all of its node's CPUs)",
+    )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
+def add_cluster_options(parser: argparse.ArgumentParser) -> None:
+    from cluster.balance import BALANCERS  # light: numpy only
+
+    default = "cost-aware" if "cost-aware" in BALANCERS else "none"
+    parser.add_argument(
+        "--tracers",
+        type=positive_int,
+        help="tracer actors to render with (default: one per Ray node, using its CPUs)",
+    )
+    parser.add_argument(
+        "--balancer",
+        default=default,
+        metavar="NAME",
+        help=f"how lines are split among tracers: {', '.join(sorted(BALANCERS))} "
+        f"(default: {default})",
+    )
+    parser.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="join a Ray cluster: host:port of its head, or 'auto' for the one `ray start` "
+        "runs on this machine (default: start an embedded local Ray)",
+    )
+    parser.add_argument(
+        "--frames",
+        metavar="RANGE",
+        help="animation frames to render: N or FIRST-LAST, inclusive (default: all)",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -127,8 +181,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("interrupted; nothing written", file=sys.stderr)
+    except CommandFailed as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt as exc:
+        message = exc.args[0] if exc.args else "interrupted; nothing written"
+        print(message, file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # e.g. `tilerender info ... | head`
         sys.stderr.close()

@@ -12,6 +12,8 @@ import os
 from pathlib import Path
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
+_MARK = "TILERENDER_NUMBA_CACHE_SET"
+"""Environment variable recording the directory ``configure`` chose (see there)."""
 
 
 def source_digest() -> str:
@@ -35,12 +37,17 @@ def configure() -> Path:
     """Point ``NUMBA_CACHE_DIR`` at the versioned cache directory, unless numba is configured.
 
     Must run before numba is imported for the setting to take effect; ``tracer/__init__`` does it.
+    A value this function set in a parent process (Ray workers inherit the driver's environment)
+    is recomputed, so a process never uses kernels of sources other than its own.
     Returns the directory used.
     """
-    if "NUMBA_CACHE_DIR" in os.environ and "TILERENDER_NUMBA_CACHE" not in os.environ:
-        return Path(os.environ["NUMBA_CACHE_DIR"])
+    inherited = os.environ.get("NUMBA_CACHE_DIR")
+    ours = inherited is not None and inherited == os.environ.get(_MARK)
+    if inherited is not None and not ours and "TILERENDER_NUMBA_CACHE" not in os.environ:
+        return Path(inherited)
     path = cache_base() / source_digest()
     os.environ["NUMBA_CACHE_DIR"] = str(path)
+    os.environ[_MARK] = str(path)
     return path
 
 

@@ -1,2 +1,2 @@
-"""Brigade tracers: a scene replica that follows the cluster's commits, and (next) the Ray actor
-that renders line ranges with it. Knows nothing of HTTP or balancing."""
+"""Brigade tracers: a scene replica that follows the cluster's commits (``replica``) and the Ray
+actor that renders line ranges with it (``tracer_actor``). Knows nothing of HTTP or balancing."""

@@ -1,6 +1,7 @@
 """The ``tilerender`` command line: renders what the library renders, describes scenes, and
 turns every bad input into exit code 2 with one line on stderr and no output file."""
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -12,6 +13,7 @@ import pytest
 from PIL import Image
 
 from cli import main as cli_main
+from cluster.scene_graph import SceneGraph
 from tests.helpers import GLTF_BOX, ROOT, tiny_scene, write_json
 from tracer import config
 from tracer.compile import compile_scene
@@ -66,6 +68,69 @@ def test_render_npy_equals_the_library(capsys, tmp_path, tiny_scene_file, thread
     assert got.max() > 0
 
 
+def test_render_with_tracers_and_a_balancer(capsys, tmp_path, tiny_scene_file):
+    """--tracers and --balancer change which tracer renders which lines, never the pixels."""
+    out = tmp_path / "out.npy"
+    options = ["--tracers", 3, "--balancer", "robin-hood", "-q"]
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, *OVERRIDES, *options)
+    assert code == 0, err
+    assert err == ""
+    scene = compile_scene(load_scene(tiny_scene_file))
+    camera = override(scene.camera, width=10, height=6)
+    settings = override(scene.render, spp=3, seed=5, max_depth=3)
+    assert np.array_equal(read_image(out), render_image(scene, camera, settings)[0])
+
+
+def animated_scene(frames: int = 4) -> dict:
+    """tiny_scene with the cube (made rigid) sliding and turning, and the camera moving."""
+    data = tiny_scene()
+    data["objects"][1]["kind"] = "rigid"
+    data["animation"] = {
+        "fps": 4,
+        "frames": frames,
+        "objects": {
+            "cube": [
+                {"time": 0, "translate": [0, 0.5, 0]},
+                {"time": 1, "translate": [0.8, 0.5, -0.5], "rotate": [0, 90, 0]},
+            ]
+        },
+        "camera": [{"time": 0}, {"time": 1, "position": [1.0, 2.0, 4.0]}],
+    }
+    return data
+
+
+def test_render_animation_writes_each_frame(capsys, tmp_path):
+    """On an animated scene `render` writes OUT_NNNN per selected frame, each exactly the
+    library's render of that frame's pose (frame number in the random keys), and prints a
+    timing line with the idle percentage per frame."""
+    scene = write_json(tmp_path / "anim.json", animated_scene(frames=4))
+    out = tmp_path / "shot.npy"
+    argv = ["--frames", "1-3", "--tracers", 2, "--width", 16, "--height", 12, "--spp", 2]
+    code, stdout, err = run(capsys, "render", scene, "-o", out, *argv)
+    assert code == 0, err
+    assert stdout == ""
+    names = sorted(p.name for p in tmp_path.glob("shot*"))
+    assert names == ["shot_0001.npy", "shot_0002.npy", "shot_0003.npy"]
+    state = load_scene(scene)
+    state = dataclasses.replace(
+        state,
+        camera=override(state.camera, width=16, height=12),
+        render=override(state.render, spp=2),
+    )
+    graph = SceneGraph(state)
+    images = []
+    for number in range(4):
+        graph.frame_commit(number)
+        if number == 0:
+            continue
+        expected = render_image(compile_scene(graph.state), frame=number)[0]
+        images.append(read_image(tmp_path / f"shot_{number:04d}.npy"))
+        assert np.array_equal(images[-1], expected), number
+        assert f"frame {number}: shot_{number:04d}.npy" in err
+    assert not np.array_equal(images[0], images[-1])
+    assert err.count("idle") >= 3 and "wrote 3 frames" in err
+
+
 def test_render_overrides_change_the_image(capsys, tmp_path, tiny_scene_file):
     """--seed and --max-depth reach the renderer: each changes the image."""
     images = {}
@@ -111,12 +176,12 @@ def test_render_mesh_file_alone(capsys, tmp_path):
 
 def test_interrupted_render_writes_nothing(capsys, tmp_path, tiny_scene_file, monkeypatch):
     """Ctrl-C during a render exits with 130 and one line, and writes no file."""
-    from cli import commands
+    from cluster.coordinator import Coordinator
 
     def interrupt(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(commands, "render_image", interrupt)
+    monkeypatch.setattr(Coordinator, "render_frame", interrupt)
     out = tmp_path / "out.png"
     code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--spp", 1, "-q")
     assert code == 130
@@ -163,6 +228,7 @@ def test_help(capsys, argv):
         assert all(word in out for word in ("render", "samples", "info", "schema"))
     if argv[0] == "render":
         assert all(f"--{o}" in out for o in ("spp", "width", "height", "seed", "max-depth"))
+        assert all(f"--{o}" in out for o in ("tracers", "balancer", "ray-address", "frames"))
 
 
 def test_schema_is_json(capsys):
@@ -213,6 +279,22 @@ BAD_INPUT = {
     "no command": ([], ["required"]),
     "info missing scene": (["info", "{tmp}/nope.json"], ["nope.json"]),
     "info bad json": (["info", "{tmp}/bad.json"], ["not valid JSON"]),
+    "unknown balancer": (
+        ["render", "{scene}", "-o", OUT, "--balancer", "fastest"],
+        ["fastest", "cost-aware", "robin-hood"],
+    ),
+    "unreachable ray": (
+        ["render", "{scene}", "-o", OUT, "--ray-address", "127.0.0.1:1"],
+        ["127.0.0.1:1", "cannot reach"],
+    ),
+    "bad ray address": (["render", "{scene}", "-o", OUT, "--ray-address", "nowhere"], ["nowhere"]),
+    "tracers 0": (["render", "{scene}", "-o", OUT, "--tracers", "0"], ["--tracers"]),
+    "frames on a still scene": (
+        ["render", "{scene}", "-o", OUT, "--frames", "0"],
+        ["--frames", "no animation"],
+    ),
+    "frames past the end": (["render", "{anim}", "-o", OUT, "--frames", "2-9"], ["0-3"]),
+    "frames not a range": (["render", "{anim}", "-o", OUT, "--frames", "two"], ["'two'"]),
     "samples no dir": (["samples", "--scenes", "{tmp}/none", "--out", "{tmp}"], ["none"]),
     "samples empty dir": (["samples", "--scenes", "{tmp}/inner", "--out", "{tmp}"], ["no sample"]),
 }
@@ -229,6 +311,7 @@ def bad_files(tmp_path):
     (tmp_path / "stolen.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     write_json(tmp_path / "inner" / "escape.json", data)
     (tmp_path / "dir.png").mkdir()
+    write_json(tmp_path / "anim.json", animated_scene(frames=4))
     return tmp_path
 
 
@@ -237,7 +320,10 @@ def test_bad_input(capsys, bad_files, tiny_scene_file, case):
     """Each bad input exits with 2 and one "error:" line on stderr, no traceback, and no
     output file."""
     template, words = BAD_INPUT[case]
-    argv = [a.format(tmp=bad_files, scene=tiny_scene_file) for a in template]
+    argv = [
+        a.format(tmp=bad_files, scene=tiny_scene_file, anim=bad_files / "anim.json")
+        for a in template
+    ]
     before = sorted(bad_files.rglob("*"))
     code, out, err = run(capsys, *argv)
     assert_usage_error(code, err, *words)

@@ -1,0 +1,483 @@
+"""Replay recorded per-line cost traces through the workload balancers and measure idle time.
+
+Set-up (every balancer sees exactly the same frames, speeds and noise):
+
+- **Trace.** ``bench/traces/<orbit>.npz`` (``bench/record_cost_traces.py``): the real cost of
+  every line of 128 frames of an orbiting camera. ``slow``/``fast`` have 96 lines (128x96),
+  ``slow-hd``/``fast-hd`` 480 lines (640x480).
+- **Tracers.** T tracers with relative speeds drawn log-uniform in ``[0.5, 2]`` from
+  ``numpy.random.default_rng(seed + T)`` (the *equal* rows give every tracer speed 1, Bikker's
+  Table 16 set-up with two identical GPUs). Speeds are scaled so a perfectly balanced frame
+  takes ``--frame-ms`` (the cluster is sized for its frame rate).
+- **A frame.** ``split`` gives ranges; tracer i spends
+  ``sum(cost[y0:y1]) / speed_i * jitter + overhead`` seconds, where ``jitter`` is lognormal
+  (median 1, sigma ``--jitter``), drawn per frame and tracer from a generator seeded by
+  ``--seed`` (identical for every balancer), and ``overhead`` (``--overhead-ms``) is paid by
+  every tracer with a non-empty range. Tracers with empty ranges are not called and spend 0 s.
+  Then ``observe`` gets each tracer's range, seconds and line costs.
+- **Metric.** Idle % of each frame, ``100 * sum_i (t_max - t_i) / (T * t_max)`` (Table 16),
+  averaged over all frames (the cold start included: frame 0 is an even split for everyone),
+  over frames 8 and later ("steady"), and its 95th percentile and maximum (the spikes of
+  Bikker's figure 48).
+- **Oracle.** Not a balancer: the min-max partition of each frame's *true* costs with the
+  *true* speeds. What remains is the floor set by jitter and by whole-line granularity.
+
+Writes ``bench/results/balance_sim.json`` and, when matplotlib is installed (the ``peers``
+extra), ``bench/results/balance_sim.png`` (idle % per frame, after Bikker's figure 48).
+"""
+
+import argparse
+import itertools
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+from common import (
+    REPO_ROOT,
+    RESULTS_DIR,
+    console,
+    machine_info,
+    note,
+    print_machine,
+    print_table,
+    styled_verdict,
+    verdict,
+    write_results,
+)
+
+from cluster.balance import (
+    BALANCERS,
+    CostAware,
+    PerfectSmooth,
+    RobinHood,
+    TracerReport,
+    idle_percent,
+    make_balancer,
+    min_max_cuts,
+)
+
+TRACE_DIR = REPO_ROOT / "bench" / "traces"
+ORACLE = "oracle"
+STEADY_FROM = 8
+"""Frames before this one count in the "all" mean only: the balancers' cold start."""
+
+# Targets from the issue, for the cost-aware balancer: (orbit, scenario) -> mean idle % at most.
+# Two tracers on both resolutions of both orbits (and the equal-speed pair); 8-128 tracers on
+# the fast orbit at 480 lines (96 lines cannot be shared among 32 or 128 tracers).
+TARGETS = {
+    ("slow", "2"): 1.0,
+    ("slow", "2eq"): 1.0,
+    ("slow-hd", "2"): 1.0,
+    ("slow-hd", "2eq"): 1.0,
+    ("fast", "2"): 2.0,
+    ("fast", "2eq"): 2.0,
+    ("fast-hd", "2"): 2.0,
+    ("fast-hd", "2eq"): 2.0,
+    ("fast-hd", "8"): 3.0,
+    ("fast-hd", "32"): 3.0,
+    ("fast-hd", "128"): 3.0,
+}
+
+
+def load_trace(name: str) -> np.ndarray:
+    """The cost array (frames, height) of ``bench/traces/<name>.npz``, as float64."""
+    path = TRACE_DIR / f"{name}.npz"
+    if not path.exists():
+        raise SystemExit(f"{path} is missing: run bench/record_cost_traces.py first")
+    with np.load(path) as data:
+        return data["cost"].astype(np.float64)
+
+
+def tracer_speeds(count: int, equal: bool, seed: int, low: float, high: float) -> np.ndarray:
+    """Relative speeds: all 1 when ``equal``, else log-uniform in [low, high]."""
+    if equal:
+        return np.ones(count)
+    rng = np.random.default_rng(seed + count)
+    return np.exp(rng.uniform(math.log(low), math.log(high), count))
+
+
+def simulate(
+    balancer,
+    cost: np.ndarray,
+    speeds: np.ndarray,
+    jitter: np.ndarray,
+    overhead: float,
+    lag: int = 0,
+) -> np.ndarray:
+    """Idle % of every frame of ``cost`` (frames, H) for ``balancer`` (or ``ORACLE``) and
+    tracers of absolute ``speeds`` (cost units per second), ``jitter`` (frames, T). With
+    ``lag`` k, frame f is split before frames f-k..f-1 are observed (a pipelined
+    coordinator: k = 1)."""
+    frames, height = cost.shape
+    ids = [f"t{i:03d}" for i in range(speeds.size)]
+    idle = np.empty(frames)
+    pending: list[list[TracerReport]] = []
+    for f in range(frames):
+        line_cost = cost[f]
+        if balancer == ORACLE:
+            floor = CostAware.FLOOR * max(line_cost.mean(), 1e-300)
+            edges = min_max_cuts(np.maximum(line_cost, floor), speeds)
+            ranges = list(itertools.pairwise(edges))
+        else:
+            ranges = balancer.split(height, ids)
+        seconds = np.zeros(speeds.size)
+        reports = []
+        for i, (y0, y1) in enumerate(ranges):
+            if y1 > y0:
+                seconds[i] = line_cost[y0:y1].sum() / speeds[i] * jitter[f, i] + overhead
+            reports.append(
+                TracerReport(ids[i], y0, y1, float(seconds[i]), line_cost[y0:y1].astype(np.int64))
+            )
+        if balancer != ORACLE:
+            pending.append(reports)
+            while len(pending) > lag:
+                balancer.observe(height, pending.pop(0))
+        idle[f] = idle_percent(seconds)
+    return idle
+
+
+def summarise(idle: np.ndarray) -> dict[str, float]:
+    """Mean over all frames; mean, 95th percentile and maximum over the steady frames."""
+    steady = idle[STEADY_FROM:] if idle.size > STEADY_FROM else idle
+    return {
+        "mean": float(idle.mean()),
+        "steady": float(steady.mean()),
+        "p95": float(np.percentile(steady, 95)),
+        "max": float(steady.max()),
+    }
+
+
+def result_key(sigma: float, lag: int) -> str:
+    return f"jitter {sigma:g}, lag {lag}"
+
+
+def scenarios(counts: list[int], equal_pair: bool) -> list[tuple[str, int, bool]]:
+    """(label, tracers, equal speeds): the equal pair first, then each count."""
+    out = [("2eq", 2, True)] if equal_pair else []
+    return out + [(str(t), t, False) for t in counts]
+
+
+def run(args, factories: dict, jitter_sigma: float, lag: int, keep_frames: bool) -> dict:
+    """Every balancer on every orbit and scenario at one jitter level and lag; returns
+    ``{orbit: {scenario: {..., "balancers": {name: summary}}}}``."""
+    results: dict = {}
+    for orbit in args.orbits:
+        cost = load_trace(orbit)[: args.frames]
+        frames, height = cost.shape
+        mean_frame_cost = float(cost.sum(axis=1).mean())
+        results[orbit] = {}
+        for label, count, equal in scenarios(args.tracers, not args.no_equal):
+            rel = tracer_speeds(count, equal, args.seed, *args.speed_range)
+            speeds = rel * mean_frame_cost / (rel.sum() * args.frame_ms * 1e-3)
+            rng = np.random.default_rng([args.seed, count, int(equal)])
+            jitter = np.exp(jitter_sigma * rng.standard_normal((frames, count)))
+            entry = {
+                "tracers": count,
+                "equal_speeds": equal,
+                "relative_speeds": np.round(rel, 4),
+                "lines": height,
+                "frames": frames,
+                "balancers": {},
+            }
+            for name, factory in factories.items():
+                balancer = ORACLE if factory == ORACLE else factory()
+                idle = simulate(balancer, cost, speeds, jitter, args.overhead_ms * 1e-3, lag)
+                entry["balancers"][name] = summarise(idle)
+                if keep_frames:
+                    entry["balancers"][name]["per_frame"] = np.round(idle, 2)
+            results[orbit][label] = entry
+    return results
+
+
+def print_results(results: dict, title: str) -> None:
+    """One table: a row per orbit and balancer, a column per scenario, cells
+    ``mean / steady / p95``."""
+    orbits = list(results)
+    labels = list(results[orbits[0]])
+    rows = []
+    for orbit in orbits:
+        names = list(results[orbit][labels[0]]["balancers"])
+        for name in names:
+            cells = []
+            for label in labels:
+                d = results[orbit][label]["balancers"][name]
+                cells.append(f"{d['mean']:5.2f} /{d['steady']:5.2f} /{d['p95']:5.1f}")
+            rows.append([f"{orbit} {name}", *cells])
+    headers = ["orbit, balancer"] + [
+        f"T={label} ({results[orbits[0]][label]['tracers']})" if label == "2eq" else f"T={label}"
+        for label in labels
+    ]
+    print_table(title, headers, rows)
+
+
+TARGET_COLUMNS = "run orbit T target all steady perfect-smooth oracle reachable verdict steady"
+TARGET_COLUMNS = TARGET_COLUMNS.split()
+
+
+def check_targets(all_results: dict) -> list[dict]:
+    """The issue's targets for ``cost-aware`` at every jitter level, on the mean over all
+    frames and over the steady frames."""
+    checks = []
+    for run_key, results in all_results.items():
+        for (orbit, label), target in TARGETS.items():
+            entry = results.get(orbit, {}).get(label)
+            if entry is None or "cost-aware" not in entry["balancers"]:
+                continue
+            ours = entry["balancers"]["cost-aware"]
+            oracle = entry["balancers"].get(ORACLE)
+            smooth = entry["balancers"].get("perfect-smooth")
+            checks.append(
+                {
+                    "run": run_key,
+                    "orbit": orbit,
+                    "tracers": label,
+                    "target": target,
+                    "mean": ours["mean"],
+                    "steady": ours["steady"],
+                    "perfect_smooth_mean": None if smooth is None else smooth["mean"],
+                    "oracle_mean": None if oracle is None else oracle["mean"],
+                    "reachable": None if oracle is None else bool(oracle["mean"] <= target),
+                    "verdict_mean": verdict(ours["mean"], target, at_most=True),
+                    "verdict_steady": verdict(ours["steady"], target, at_most=True),
+                }
+            )
+    if checks:
+
+        def cell(value):
+            return "-" if value is None else f"{value:.2f}"
+
+        print_table(
+            "targets: cost-aware idle % (mean over all frames, over frames 8+); the oracle's "
+            "mean is the floor that jitter and whole lines leave to any balancer",
+            TARGET_COLUMNS,
+            [
+                [
+                    c["run"],
+                    c["orbit"],
+                    c["tracers"],
+                    f"<= {c['target']:.1f}",
+                    cell(c["mean"]),
+                    cell(c["steady"]),
+                    cell(c["perfect_smooth_mean"]),
+                    cell(c["oracle_mean"]),
+                    {None: "-", True: "yes", False: "no"}[c["reachable"]],
+                    styled_verdict(c["verdict_mean"]),
+                    styled_verdict(c["verdict_steady"]),
+                ]
+                for c in checks
+            ],
+        )
+    return checks
+
+
+def sweep_variants() -> dict:
+    """Variants of the balancers' constants, one changed at a time from the defaults."""
+    variants: dict = {}
+    variants["robin-hood unit=1% of H"] = RobinHood
+    for unit in (1, 2, 4, 8):
+        variants[f"robin-hood unit={unit}"] = lambda u=unit: RobinHood(unit=u)
+    for alpha in (0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0):
+        variants[f"perfect-smooth alpha={alpha}"] = lambda a=alpha: PerfectSmooth(alpha=a)
+    variants["cost-aware (defaults)"] = CostAware
+    for abp in CostAware.PREDICTORS:
+        variants["cost-aware only a={} b={} phi={}".format(*abp)] = lambda p=abp: CostAware(
+            predictors=[p]
+        )
+    for blur in (0, 2, 4):
+        variants[f"cost-aware blur={blur}"] = lambda r=blur: CostAware(blur=r)
+    for gamma in (0.1, 0.2, 0.5, 1.0):
+        variants[f"cost-aware speed_alpha={gamma}"] = lambda g=gamma: CostAware(speed_alpha=g)
+    for w in (0.05, 0.3, 1.0):
+        variants[f"cost-aware error_alpha={w}"] = lambda w=w: CostAware(error_alpha=w)
+    return variants
+
+
+def plot(results: dict, path: Path, jitter: str) -> bool:
+    """Idle % per frame, one panel per orbit and scenario (figure 48's layout)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        note("matplotlib is not installed (pip install -e '.[peers]'): no plot written")
+        return False
+    panels = [(o, s) for o, by in results.items() for s in by]
+    cols = len(results)
+    rows = max(len(by) for by in results.values())
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(4.2 * cols, 2.4 * rows), squeeze=False, sharex=True
+    )
+    for c, (orbit, by_label) in enumerate(results.items()):
+        for r, (label, entry) in enumerate(by_label.items()):
+            ax = axes[r][c]
+            for name, data in entry["balancers"].items():
+                style = {"linestyle": ":", "color": "grey"} if name == ORACLE else {}
+                ax.plot(data["per_frame"], label=name, linewidth=0.8, **style)
+            ax.set_yscale("symlog", linthresh=1.0)
+            ax.set_ylim(0, 100)
+            ax.set_title(f"{orbit}, T={label} ({entry['lines']} lines; {jitter})", fontsize=9)
+            ax.tick_params(labelsize=7)
+            if c == 0:
+                ax.set_ylabel("idle %", fontsize=8)
+    for c in range(cols):
+        axes[-1][c].set_xlabel("frame", fontsize=8)
+    for r in range(rows):
+        for c in range(cols):
+            if r >= len(list(results.values())[c]):
+                axes[r][c].axis("off")
+    handles, names = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="upper center", ncol=len(names), fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    fig.savefig(path, dpi=72)
+    plt.close(fig)
+    console.print(f"[dim]plot written to {path.relative_to(REPO_ROOT)} ({len(panels)} panels)[/]")
+    return True
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog=__doc__.split("\n\n", 1)[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--orbits",
+        nargs="+",
+        default=["slow", "fast", "slow-hd", "fast-hd"],
+        help="traces in bench/traces/ to replay (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--tracers",
+        nargs="+",
+        type=int,
+        default=[2, 3, 8, 32, 128],
+        help="tracer counts with unequal speeds (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--no-equal",
+        action="store_true",
+        help="leave out the 2-tracer equal-speed scenario (Table 16's set-up)",
+    )
+    parser.add_argument(
+        "--balancers",
+        nargs="+",
+        default=[*BALANCERS, ORACLE],
+        choices=[*BALANCERS, ORACLE],
+        help="balancers to run (default: all)",
+    )
+    parser.add_argument("--frames", type=int, default=128, help="frames to replay (default 128)")
+    parser.add_argument(
+        "--jitter",
+        nargs="+",
+        type=float,
+        default=[0.05, 0.01, 0.0],
+        help="sigmas of the lognormal timing noise, one full run each (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--overhead-ms",
+        type=float,
+        default=0.5,
+        help="fixed cost of every non-empty range (default %(default)s ms)",
+    )
+    parser.add_argument(
+        "--frame-ms",
+        type=float,
+        default=50.0,
+        help="a perfectly balanced frame's time (default %(default)s ms)",
+    )
+    parser.add_argument(
+        "--speed-range",
+        nargs=2,
+        type=float,
+        default=[0.5, 2.0],
+        metavar=("LOW", "HIGH"),
+        help="relative tracer speeds, log-uniform (default 0.5 2)",
+    )
+    parser.add_argument("--seed", type=int, default=1, help="seed of speeds and jitter (1)")
+    parser.add_argument(
+        "--lag",
+        nargs="+",
+        type=int,
+        default=[0, 1],
+        help="frames split before the previous frame is observed, one full run each: 0 as in "
+        "Brigade, 1 for cluster.coordinator's two-frame pipeline (default: %(default)s); the "
+        "first is plotted",
+    )
+    parser.add_argument(
+        "--sweep",
+        action="store_true",
+        help="instead of the balancers: variants of their constants (robin-hood's unit, "
+        "perfect-smooth's alpha, cost-aware's forecasters, blur and smoothing weights)",
+    )
+    parser.add_argument(
+        "--name",
+        default=None,
+        help="results files bench/results/NAME.json and NAME.png (default balance_sim; with "
+        "--sweep no file is written unless a name is given)",
+    )
+    parser.add_argument(
+        "--plot-jitter",
+        type=float,
+        default=0.01,
+        help="jitter level to plot, at the first lag (default %(default)s; the first of "
+        "--jitter if not run)",
+    )
+    parser.add_argument("--no-plot", action="store_true", help="do not write the PNG plot")
+    args = parser.parse_args(argv)
+    if args.frames < 1 or min(args.tracers) < 1 or min(args.jitter) < 0 or args.overhead_ms < 0:
+        parser.error("--frames and --tracers must be positive, --jitter and --overhead-ms >= 0")
+    if min(args.lag) < 0:
+        parser.error("--lag must be >= 0")
+    if args.name is not None and not args.name.replace("_", "").replace("-", "").isalnum():
+        parser.error("--name is a file name without a directory: letters, digits, - and _")
+    if not 0 < args.speed_range[0] <= args.speed_range[1]:
+        parser.error("--speed-range needs 0 < LOW <= HIGH")
+
+    machine = machine_info()
+    print_machine(machine)
+    start = time.perf_counter()
+    options = dict(vars(args))
+    if args.sweep:
+        factories = sweep_variants()
+    else:
+        factories = {
+            name: (ORACLE if name == ORACLE else (lambda n=name: make_balancer(n)))
+            for name in args.balancers
+        }
+    all_results = {}
+    shown = args.plot_jitter if args.plot_jitter in args.jitter else args.jitter[0]
+    for lag in args.lag:
+        for sigma in args.jitter:
+            key = result_key(sigma, lag)
+            plotted = sigma == shown and lag == args.lag[0] and not args.sweep
+            all_results[key] = run(args, factories, sigma, lag, keep_frames=plotted)
+            print_results(
+                all_results[key],
+                f"{'sweep: ' if args.sweep else ''}idle %, mean over all {args.frames} frames / "
+                f"over frames {STEADY_FROM}+ / 95th percentile over frames {STEADY_FROM}+; "
+                f"{key}",
+            )
+    console.print(
+        f"[dim]overhead {args.overhead_ms:g} ms per range, balanced frame {args.frame_ms:g} "
+        f"ms, speeds log-uniform in {args.speed_range} (seed {args.seed}); "
+        f"{time.perf_counter() - start:.1f} s[/]"
+    )
+    if args.sweep:
+        if args.name:
+            write_results(args.name, {"options": options, "results": all_results}, machine)
+        return 0
+    args.name = args.name or "balance_sim"
+    checks = check_targets(all_results)
+    payload = {"options": options, "targets": checks, "results": all_results}
+    write_results(args.name, payload, machine)
+    if not args.no_plot:
+        RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+        key = result_key(shown, args.lag[0])
+        plot(all_results[key], RESULTS_DIR / f"{args.name}.png", key)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

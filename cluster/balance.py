@@ -1,0 +1,593 @@
+"""Workload balancers (Brigade, Bikker 7.3.3): how a frame's lines are split among tracers.
+
+A balancer gives each tracer one contiguous line range, in tracer order, together covering
+``[0, height)`` exactly. Before each frame the coordinator calls ``split``; after it, ``observe``
+with what each tracer reported (its range, seconds spent, and the per-line cost of its lines),
+so the next split can use them. Splits never change pixels (the tracer is deterministic per
+pixel); they change only how long tracers wait for each other.
+
+Balancers (``make_balancer(name)``; formulas and measurements in ``docs/balancing.md``):
+
+- ``none``: even split, no memory (Bikker's reference).
+- ``robin-hood``: the tracer that finished last gives one unit of lines to the one that
+  finished first.
+- ``perfect``: each tracer's share of lines from its lines per second in the previous frame.
+- ``perfect-smooth``: ``perfect`` with an exponential moving average of the shares.
+- ``cost-aware``: predicts every line's cost from the previous frames' per-line costs and each
+  tracer's speed in cost units per second, and cuts the frame so the predicted times are equal
+  (the min-max contiguous partition of the predicted costs).
+
+State is kept per tracer id, so tracers may join and leave between frames: an id a balancer has
+not seen gets a default (an even or mean share). Balancers are deterministic: the same calls
+give the same splits.
+"""
+
+import bisect
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+LineRange = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class TracerReport:
+    """One tracer's share of a finished frame."""
+
+    tracer: str
+    y0: int
+    y1: int
+    seconds: float
+    line_cost: np.ndarray
+    """int64 (y1 - y0,): the tracer's work per line (node visits plus triangle tests)."""
+
+
+class Balancer:
+    """Base class: even split, no memory (Bikker's ``none``)."""
+
+    name = "none"
+
+    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
+        """Contiguous ranges, one per tracer in order, covering [0, height). A tracer may get
+        an empty range when there are more tracers than lines."""
+        _check_split_args(height, tracers)
+        return even_split(height, len(tracers))
+
+    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
+        """Learn from a finished frame (reports in tracer order)."""
+        _check_reports(height, reports)
+
+
+def even_split(height: int, parts: int) -> list[LineRange]:
+    """``parts`` contiguous ranges whose sizes differ by at most one line."""
+    if parts < 1:
+        raise ValueError("a split needs at least one tracer")
+    edges = [height * k // parts for k in range(parts + 1)]
+    return list(itertools.pairwise(edges))
+
+
+def idle_percent(seconds: Sequence[float]) -> float:
+    """Percentage of the frame's tracer time spent waiting for the slowest tracer (Bikker,
+    Table 16): ``100 * sum_i (t_max - t_i) / (T * t_max)``; 0 for no tracers or no time."""
+    t = np.asarray(seconds, dtype=np.float64)
+    if t.size == 0:
+        return 0.0
+    if not np.all(np.isfinite(t)) or np.any(t < 0.0):
+        raise ValueError("seconds must be finite and non-negative")
+    t_max = float(t.max())
+    if t_max <= 0.0:
+        return 0.0
+    return float(100.0 * np.sum(t_max - t) / (t.size * t_max))
+
+
+# --- shared helpers ----------------------------------------------------------------------------
+
+
+def _check_split_args(height: int, tracers: Sequence[str]) -> None:
+    if height < 0:
+        raise ValueError(f"height must be non-negative, not {height}")
+    if len(tracers) < 1:
+        raise ValueError("a split needs at least one tracer")
+    if len(set(tracers)) != len(tracers):
+        raise ValueError("tracer ids must be distinct")
+
+
+def _check_reports(height: int, reports: Sequence[TracerReport]) -> None:
+    """Reject reports that cannot describe a frame of ``height`` lines."""
+    for r in reports:
+        if not 0 <= r.y0 <= r.y1 <= height:
+            raise ValueError(f"tracer {r.tracer!r}: range [{r.y0}, {r.y1}) not in [0, {height})")
+        if np.shape(r.line_cost) != (r.y1 - r.y0,):
+            raise ValueError(
+                f"tracer {r.tracer!r}: {np.shape(r.line_cost)} line costs for {r.y1 - r.y0} lines"
+            )
+
+
+def _usable(seconds: float) -> bool:
+    """A measured time a speed can be derived from."""
+    return math.isfinite(seconds) and seconds > 0.0
+
+
+def ranges_from_edges(edges: Sequence[int]) -> list[LineRange]:
+    """``[(e0, e1), (e1, e2), ...]`` from nondecreasing cut positions ``e0 = 0 ... eT = H``."""
+    edges = [int(e) for e in edges]
+    return list(itertools.pairwise(edges))
+
+
+def proportional_split(height: int, weights: Sequence[float]) -> list[LineRange]:
+    """Contiguous ranges with sizes proportional to ``weights`` (non-negative, not all zero),
+    cut at the rounded cumulative fractions ``round(H * sum_{j<k} w_j / sum_j w_j)``."""
+    w = np.asarray(weights, dtype=np.float64)
+    total = float(w.sum())
+    if total <= 0.0 or not math.isfinite(total):
+        return even_split(height, len(w))
+    fractions = np.concatenate(([0.0], np.cumsum(w) / total))
+    edges = np.rint(height * fractions).astype(np.int64)
+    edges[0], edges[-1] = 0, height
+    return ranges_from_edges(np.maximum.accumulate(np.minimum(edges, height)))
+
+
+def _fill_unknown(values: dict[str, float], tracers: Sequence[str]) -> np.ndarray:
+    """``values`` for ``tracers``; an id without a value gets the mean of the known ones (all 1
+    when none is known)."""
+    known = [values[t] for t in tracers if t in values]
+    default = float(np.mean(known)) if known else 1.0
+    return np.array([values.get(t, default) for t in tracers], dtype=np.float64)
+
+
+def min_max_cuts(
+    cost: Sequence[float], speeds: Sequence[float], prefer: Sequence[float] | None = None
+) -> list[int]:
+    """Cut positions ``0 = e0 <= ... <= eT = H`` of the contiguous, in-order partition of lines
+    with costs ``cost`` among tracers with ``speeds`` that minimises the largest predicted time
+    ``sum(cost[e_i:e_{i+1}]) / speeds[i]``.
+
+    Among the partitions reaching that minimum, each cut is taken as close as it can be to
+    ``prefer`` (fractional positions; default the proportional cut, where the cumulative cost
+    reaches the tracers' cumulative share of the speed), so the slack is spread instead of
+    being left to the last tracers. ``cost`` must be positive, ``speeds`` positive.
+    """
+    c = np.asarray(cost, dtype=np.float64)
+    v = np.asarray(speeds, dtype=np.float64)
+    height, parts = c.size, v.size
+    if parts < 1:
+        raise ValueError("a split needs at least one tracer")
+    if height == 0:
+        return [0] * (parts + 1)
+    if not (np.all(c > 0.0) and np.all(v > 0.0) and np.all(np.isfinite(c))):
+        raise ValueError("min_max_cuts needs positive, finite costs and speeds")
+    prefix = np.concatenate(([0.0], np.cumsum(c)))
+    total = prefix[-1]
+    if prefer is None:
+        shares = np.concatenate(([0.0], np.cumsum(v) / v.sum()))
+        prefer = np.interp(total * shares, prefix, np.arange(height + 1))
+    prefer = np.asarray(prefer, dtype=np.float64)
+    sums, rates = prefix.tolist(), v.tolist()  # plain floats: bisect is fast on lists
+
+    def forward(tau: float, edges: list[int] | None = None) -> bool:
+        # Each tracer in turn takes as many lines as fit in ``tau``: the latest possible cuts.
+        a = 0
+        for i in range(parts):
+            a = max(a, bisect.bisect_right(sums, sums[a] + tau * rates[i]) - 1)
+            if edges is not None:
+                edges.append(a)
+            elif a >= height:
+                return True
+        return a >= height
+
+    # Bisect the bottleneck time between the fluid optimum and one fastest tracer doing it all.
+    lo, hi = total / v.sum(), total / v.max() * (1.0 + 1e-12)
+    if forward(lo):
+        hi = lo
+    while hi - lo > 1e-9 * hi:
+        mid = 0.5 * (lo + hi)
+        if forward(mid):
+            hi = mid
+        else:
+            lo = mid
+    tau = hi
+
+    # Earliest possible cuts at ``tau`` (the last tracers take as much as they can).
+    earliest = [height] * (parts + 1)
+    for i in range(parts - 1, -1, -1):
+        earliest[i] = bisect.bisect_left(sums, sums[earliest[i + 1]] - tau * rates[i])
+    greedy: list[int] = []
+    forward(tau, greedy)
+    if earliest[0] > 0:  # rounding disagreement at the boundary: keep the greedy cuts
+        return [0, *greedy[:-1], height]
+
+    # Walk the cuts, each as near its preferred position as the bottleneck allows.
+    edges = [0]
+    for k in range(1, parts):
+        a = edges[-1]
+        latest = bisect.bisect_right(sums, sums[a] + tau * rates[k - 1]) - 1
+        low = max(a, earliest[k])
+        edges.append(min(max(int(np.rint(prefer[k])), low), max(low, latest)))
+    edges.append(height)
+    last = prefix[height] - prefix[edges[-2]]
+    if last > tau * v[-1] * (1.0 + 1e-9):  # cannot happen in exact arithmetic; stay safe
+        return [0, *greedy[:-1], height]
+    return edges
+
+
+# --- robin hood --------------------------------------------------------------------------------
+
+
+class RobinHood(Balancer):
+    """After each frame the tracer that finished last gives one work unit of lines to the
+    tracer that finished first; the split is otherwise kept. Starts from an even split.
+
+    The unit is ``unit`` lines if given, else ``UNIT_FRACTION`` of the frame height rounded,
+    at least one line: one line at 96 lines, five at 480. The source leaves the unit open; a
+    fixed single line cannot keep up with a tall frame (it needs hundreds of frames to move a
+    quarter of 480 lines), and the sweep in docs/balancing.md finds about 1% of the height best
+    at both heights. A tracer that joins gets the mean line count of the others; then all
+    counts are scaled to the frame height (largest remainders, ties in tracer order)."""
+
+    name = "robin-hood"
+    UNIT_FRACTION = 0.01
+
+    def __init__(self, unit: int | None = None):
+        if unit is not None and unit < 1:
+            raise ValueError("unit must be at least one line")
+        self.unit = unit
+        self._lines: dict[str, int] = {}
+
+    def unit_lines(self, height: int) -> int:
+        """Lines moved per frame in a frame of ``height`` lines."""
+        if self.unit is not None:
+            return self.unit
+        return max(1, round(height * self.UNIT_FRACTION))
+
+    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
+        _check_split_args(height, tracers)
+        if not any(t in self._lines for t in tracers):
+            return even_split(height, len(tracers))
+        counts = _fill_unknown({t: float(n) for t, n in self._lines.items()}, tracers)
+        if counts.sum() == height and all(t in self._lines for t in tracers):
+            sizes = counts.astype(np.int64)
+        else:
+            sizes = _apportion(height, counts)
+        return ranges_from_edges(np.concatenate(([0], np.cumsum(sizes))))
+
+    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
+        _check_reports(height, reports)
+        if not reports:
+            return
+        for r in reports:
+            self._lines[r.tracer] = r.y1 - r.y0
+        timed = [i for i, r in enumerate(reports) if math.isfinite(r.seconds)]
+        if not timed:
+            return
+        last = max(timed, key=lambda i: reports[i].seconds)  # ties: the first in tracer order
+        first = min(timed, key=lambda i: reports[i].seconds)
+        if reports[last].seconds <= reports[first].seconds:
+            return  # everyone finished together
+        give = min(self.unit_lines(height), self._lines[reports[last].tracer])
+        self._lines[reports[last].tracer] -= give
+        self._lines[reports[first].tracer] += give
+
+
+def _apportion(height: int, weights: np.ndarray) -> np.ndarray:
+    """Non-negative integer sizes summing to ``height``, proportional to ``weights`` (largest
+    remainder method; ties go to the earlier tracer)."""
+    w = np.maximum(np.asarray(weights, dtype=np.float64), 0.0)
+    if w.sum() <= 0.0:
+        w = np.ones_like(w)
+    exact = height * w / w.sum()
+    sizes = np.floor(exact).astype(np.int64)
+    short = height - int(sizes.sum())
+    order = np.argsort(-(exact - sizes), kind="stable")
+    sizes[order[:short]] += 1
+    return sizes
+
+
+# --- perfect -----------------------------------------------------------------------------------
+
+
+class Perfect(Balancer):
+    """Each tracer's share from its speed in the previous frame, in lines per second:
+    ``s_i = L_i / t_i`` and ``L_i' = H * s_i / sum_j s_j`` (cut at rounded cumulative shares).
+    Differences in cost between lines are ignored, so a tracer that drew cheap lines looks fast
+    and is overloaded next frame (Bikker's "hick-ups").
+
+    A tracer without a usable measurement (empty range, zero seconds) keeps its last speed; a
+    tracer never measured gets the mean speed of the others."""
+
+    name = "perfect"
+
+    def __init__(self) -> None:
+        self._speed: dict[str, float] = {}  # lines per second, last measurement
+
+    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
+        _check_reports(height, reports)
+        for r in reports:
+            if r.y1 > r.y0 and _usable(r.seconds):
+                self._speed[r.tracer] = (r.y1 - r.y0) / r.seconds
+
+    def target_shares(self, tracers: Sequence[str]) -> np.ndarray:
+        """Fractions of the frame (summing to one) ``perfect`` would give ``tracers``."""
+        speeds = _fill_unknown(self._speed, tracers)
+        return speeds / speeds.sum()
+
+    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
+        _check_split_args(height, tracers)
+        if not any(t in self._speed for t in tracers):
+            return even_split(height, len(tracers))
+        return proportional_split(height, self.target_shares(tracers))
+
+
+class PerfectSmooth(Perfect):
+    """``perfect`` with each tracer's share smoothed over frames: after every frame
+    ``F_i <- (1 - alpha) F_i + alpha f_i``, where ``f_i`` is the share ``perfect`` would give
+    now. Shares are renormalised over the tracers of each split; a new tracer starts at its
+    ``perfect`` share.
+
+    ``alpha = 0.4`` (the newest frame weighs 0.4, one k frames older ``0.4 * 0.6**k``): the
+    simulator's sweep (``bench/balance_sim.py --sweep``, docs/balancing.md) finds 0.4 best for
+    2-8 tracers on both orbits at every timing noise, 0.5 close; smaller values lag, and from
+    0.6 on ``perfect``'s overshoot comes back as an oscillation (on a frame of cheap sky and
+    dear ground the loop gain of ``perfect`` is about 2, and ``alpha`` times it must stay
+    below 1)."""
+
+    name = "perfect-smooth"
+    ALPHA = 0.4
+
+    def __init__(self, alpha: float = ALPHA) -> None:
+        super().__init__()
+        if not 0.0 < alpha <= 1.0:
+            raise ValueError("alpha must be in (0, 1]")
+        self.alpha = alpha
+        self._share: dict[str, float] = {}
+
+    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
+        super().observe(height, reports)
+        tracers = [r.tracer for r in reports]
+        if not tracers or not any(t in self._speed for t in tracers):
+            return
+        target = self.target_shares(tracers)
+        old = self._normalised(tracers, target)
+        for t, f, g in zip(tracers, target, old, strict=True):
+            self._share[t] = (1.0 - self.alpha) * g + self.alpha * f
+
+    def _normalised(self, tracers: Sequence[str], fallback: np.ndarray) -> np.ndarray:
+        """Current shares of ``tracers`` summing to one. An id without a share takes the mean
+        share of the others; ``fallback`` when none of them has one."""
+        if not any(t in self._share for t in tracers):
+            return fallback
+        shares = _fill_unknown(self._share, tracers)
+        return shares / shares.sum()
+
+    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
+        _check_split_args(height, tracers)
+        if not any(t in self._share for t in tracers):
+            return super().split(height, tracers)
+        return proportional_split(height, self._normalised(tracers, self.target_shares(tracers)))
+
+
+# --- cost-aware --------------------------------------------------------------------------------
+
+
+class CostAware(Balancer):
+    """Cut the frame so each tracer's *predicted* time is equal, from a predicted per-line cost
+    profile and each tracer's speed in cost units per second.
+
+    - **Profile.** The reports' ``line_cost`` arrays, concatenated, are last frame's cost of
+      every line, ``c``. A small bank of forecasters (``PREDICTORS``) each predicts the next
+      frame's ``c`` per line by Holt's linear exponential smoothing with a damped trend: a
+      level ``L <- a c + (1 - a)(L + phi D)``, a trend ``D <- b (L_new - L) + (1 - b) phi D``,
+      and the forecast ``max(L + phi D, 0)``. With ``b = 0`` that is a moving average
+      (``a = 1``: last frame), which suits a slow camera, where averaging removes 1-spp noise;
+      with a trend it extrapolates features sliding through the frame, which suits a fast one
+      (``a = b = 1, phi = 1/2``: last frame plus half of its change). After every frame each
+      forecaster is scored by how far its forecast's normalised prefix sum (the cumulative cost
+      fraction, which is what places the cuts) was from the frame's, in the max norm, averaged
+      over frames with weight ``ERROR_ALPHA``; the split uses the forecaster with the lowest
+      score (ties: the first). The forecast is then blurred over ``2 * BLUR + 1`` lines (a
+      box filter: a cut on a sharp edge of the profile is the likeliest to be wrong), and every
+      line costs at least ``FLOOR`` times the mean (rays are generated and pixels written even
+      for the sky); that also makes the prefix sum strictly increasing, so cuts in zero-cost
+      stretches are well defined. A profile of another height is resampled through its prefix
+      sum.
+    - **Speeds.** Tracer i's speed is its measured cost over its seconds, over recent frames:
+      ``v_i = W_i / S_i`` with ``W_i <- (1 - gamma) W_i + gamma C_i`` and
+      ``S_i <- (1 - gamma) S_i + gamma t_i`` (``gamma = SPEED_ALPHA``, but ``1/n`` for a
+      tracer's n-th frame while that is larger: plain means at first, so the first frame, often
+      an unrepresentative even split, is forgotten as fast as the data allow). Unlike
+      ``perfect``'s lines per second it does not change when a tracer draws cheap or dear
+      lines, so it can be smoothed hard against timing noise; and as a ratio of sums it weighs
+      each frame by the work done, so a frame in which a tracer drew only sky, and its time was
+      mostly fixed overhead, hardly moves it. A range of zero cost says nothing about
+      speed and is skipped. A tracer never measured is assumed to run at the mean speed of the
+      others in the split.
+    - **Cut.** With prefix sums of the predicted cost, the partition minimising the largest
+      predicted time ``sum(P[y0:y1]) / v_i`` is found exactly (``min_max_cuts``: bisection on
+      the bottleneck time with a greedy feasibility test); among optimal partitions each cut is
+      moved as close as allowed to the proportional cut (where the cumulative predicted cost
+      reaches the tracers' cumulative share of the total speed), which is the rounded
+      fractional cut whenever rounding does not lengthen the slowest tracer.
+
+    Before any profile is known, every line is assumed to cost the same.
+    """
+
+    name = "cost-aware"
+    PREDICTORS: tuple[tuple[float, float, float], ...] = (
+        (1.0, 0.0, 1.0),  # last frame
+        (0.6, 0.0, 1.0),  # moving averages
+        (0.3, 0.0, 1.0),
+        (1.0, 1.0, 0.5),  # last frame plus half its change
+        (1.0, 0.5, 1.0),  # last frame plus a smoothed trend
+        (0.6, 0.3, 1.0),  # smoothed level and trend
+    )
+    """``(a, b, phi)`` of each forecaster: level and trend weights and trend damping."""
+    ERROR_ALPHA = 0.1
+    """Weight of the newest frame in each forecaster's score: about ten frames of memory, so
+    the choice follows a change of camera motion within a second without flickering."""
+    BLUR = 1
+    """Half-width in lines of the box filter over the predicted profile."""
+    SPEED_ALPHA = 0.2
+    """Weight of the newest frame in each tracer's averaged cost and seconds: about five
+    frames of memory. The sweep finds 0.1-0.2 best at 5% timing noise and 0.2-0.3 at 1%; a
+    real tracer's speed also drifts (other load, clocks), which argues against going lower."""
+    FLOOR = 1e-3
+    """Least cost of a line, as a fraction of the mean line cost."""
+
+    def __init__(
+        self,
+        predictors: Sequence[tuple[float, float, float]] = PREDICTORS,
+        blur: int = BLUR,
+        speed_alpha: float = SPEED_ALPHA,
+        error_alpha: float = ERROR_ALPHA,
+    ) -> None:
+        if not predictors:
+            raise ValueError("at least one predictor is needed")
+        for a, b, phi in predictors:
+            if not (0.0 < a <= 1.0 and 0.0 <= b <= 1.0 and 0.0 <= phi <= 1.0):
+                raise ValueError("predictors need 0 < a <= 1, 0 <= b <= 1 and 0 <= phi <= 1")
+        if not 0.0 < speed_alpha <= 1.0 or not 0.0 < error_alpha <= 1.0:
+            raise ValueError("speed_alpha and error_alpha must be in (0, 1]")
+        if blur < 0:
+            raise ValueError("blur must be non-negative")
+        self.blur = blur
+        self.speed_alpha = speed_alpha
+        self.error_alpha = error_alpha
+        self._predictors = [_Forecaster(a, b, phi) for a, b, phi in predictors]
+        self._work: dict[str, tuple[float, float, int]] = {}  # (cost, seconds) averages, frames
+
+    # The profile -------------------------------------------------------------------------------
+
+    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
+        _check_reports(height, reports)
+        if height == 0 or not reports:
+            return
+        cost = np.zeros(height)
+        seen = np.zeros(height, dtype=bool)
+        for r in reports:
+            cost[r.y0 : r.y1] = np.asarray(r.line_cost, dtype=np.float64)
+            seen[r.y0 : r.y1] = True
+            spent = float(np.sum(r.line_cost))
+            if spent > 0.0 and _usable(r.seconds):
+                work, time, count = self._work.get(r.tracer, (0.0, 0.0, 0))
+                g = max(self.speed_alpha, 1.0 / (count + 1))  # plain means until 1/gamma frames
+                self._work[r.tracer] = (
+                    (1 - g) * work + g * spent,
+                    (1 - g) * time + g * r.seconds,
+                    count + 1,
+                )
+        if not seen.any():
+            return
+        known = self._predictors[0].level is not None
+        if not seen.all():  # lines nobody reported: keep the forecast, else the mean
+            cost[~seen] = self.predicted_profile(height)[~seen] if known else cost[seen].mean()
+        if known and cost.sum() > 0.0:
+            actual = _cumulative_fraction(cost)
+            for p in self._predictors:
+                miss = float(np.max(np.abs(_cumulative_fraction(self._shape(p, height)) - actual)))
+                p.error = miss if p.error is None else p.error + self.error_alpha * (miss - p.error)
+        for p in self._predictors:
+            p.update(cost)
+
+    def _shape(self, forecaster: "_Forecaster", height: int) -> np.ndarray:
+        """``forecaster``'s prediction for ``height`` lines, blurred and floored."""
+        p = _box_blur(forecaster.forecast(height), self.blur)
+        mean = float(p.mean())
+        if not mean > 0.0:
+            return np.ones(height)
+        return np.maximum(p, self.FLOOR * mean)
+
+    @property
+    def chosen(self) -> int:
+        """Index into ``PREDICTORS`` of the forecaster the next split uses (lowest score; ties
+        and unscored forecasters: the first)."""
+        scores = [math.inf if p.error is None else p.error for p in self._predictors]
+        return int(np.argmin(scores))
+
+    def predicted_profile(self, height: int) -> np.ndarray:
+        """Predicted cost of each of ``height`` lines next frame (float64, all positive)."""
+        if self._predictors[0].level is None or height == 0:
+            return np.ones(height)
+        return self._shape(self._predictors[self.chosen], height)
+
+    # Speeds and the cut ------------------------------------------------------------------------
+
+    def speeds(self, tracers: Sequence[str]) -> np.ndarray:
+        """Smoothed speeds (cost units per second) of ``tracers``; unknown ids get the mean."""
+        known = {t: work / time for t, (work, time, _) in self._work.items()}
+        return _fill_unknown(known, tracers)
+
+    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
+        _check_split_args(height, tracers)
+        if height == 0:
+            return [(0, 0)] * len(tracers)
+        edges = min_max_cuts(self.predicted_profile(height), self.speeds(tracers))
+        return ranges_from_edges(edges)
+
+
+class _Forecaster:
+    """Holt's linear exponential smoothing of a per-line cost profile with a damped trend
+    (Gardner): level weight ``a``, trend weight ``b`` (``b = 0``: a moving average), damping
+    ``phi``; ``error`` is its running score."""
+
+    def __init__(self, a: float, b: float, phi: float) -> None:
+        self.a, self.b, self.phi = a, b, phi
+        self.level: np.ndarray | None = None
+        self.trend: np.ndarray | None = None
+        self.error: float | None = None
+
+    def forecast(self, height: int) -> np.ndarray:
+        """``max(level + phi trend, 0)``, resampled to ``height`` lines."""
+        assert self.level is not None and self.trend is not None
+        return np.maximum(_resample(self.level + self.phi * self.trend, height), 0.0)
+
+    def update(self, cost: np.ndarray) -> None:
+        if self.level is None or self.trend is None:
+            self.level, self.trend = cost.copy(), np.zeros_like(cost)
+            return
+        level, trend = _resample(self.level, cost.size), _resample(self.trend, cost.size)
+        new = self.a * cost + (1.0 - self.a) * (level + self.phi * trend)
+        self.trend = self.b * (new - level) + (1.0 - self.b) * self.phi * trend
+        self.level = new
+
+
+def _box_blur(values: np.ndarray, radius: int) -> np.ndarray:
+    """Mean of ``values[y - radius : y + radius + 1]`` (clipped to the array) for every y."""
+    if radius <= 0 or values.size < 2:
+        return values
+    prefix = np.concatenate(([0.0], np.cumsum(values)))
+    y = np.arange(values.size)
+    lo, hi = np.maximum(y - radius, 0), np.minimum(y + radius + 1, values.size)
+    return (prefix[hi] - prefix[lo]) / (hi - lo)
+
+
+def _cumulative_fraction(cost: np.ndarray) -> np.ndarray:
+    """Normalised prefix sum ``[0, c0, c0 + c1, ...] / sum(c)`` (length H + 1)."""
+    prefix = np.concatenate(([0.0], np.cumsum(cost)))
+    return prefix / prefix[-1]
+
+
+def _resample(profile: np.ndarray, height: int) -> np.ndarray:
+    """``profile`` (cost per line) stretched to ``height`` lines, total cost kept: the prefix
+    sum is interpolated at the new line boundaries."""
+    if profile.size == height:
+        return profile
+    prefix = np.concatenate(([0.0], np.cumsum(profile)))
+    at = np.linspace(0.0, profile.size, height + 1)
+    return np.diff(np.interp(at, np.arange(profile.size + 1), prefix))
+
+
+BALANCERS: dict[str, type[Balancer]] = {
+    cls.name: cls for cls in (Balancer, RobinHood, Perfect, PerfectSmooth, CostAware)
+}
+
+
+def make_balancer(name: str) -> Balancer:
+    """A fresh balancer by name; ValueError naming the choices for an unknown one."""
+    try:
+        return BALANCERS[name]()
+    except KeyError:
+        raise ValueError(
+            f"unknown balancer {name!r}; choose one of {', '.join(sorted(BALANCERS))}"
+        ) from None

@@ -1,0 +1,884 @@
+"""The Brigade core (Bikker 7.3.1-7.3.4): tracer actors, frame scheduling, assembly, failures.
+
+A :class:`Coordinator` starts tracer actors (:mod:`worker.tracer_actor`) on Ray, by default one
+per node using all of that node's CPUs, and renders frames of a :class:`SceneGraph`:
+
+1. **Schedule** (``submit_frame``): the frame is pinned to the graph's current version ``v``
+   (and the state at ``v`` is kept). The balancer splits the lines among the ready tracers.
+   Each tracer gets one remote ``render`` call carrying the commit buffer that takes it from
+   the version it will hold after its earlier calls to ``v``; a tracer with no usable scene (new,
+   restarted, or further behind than the graph's log) gets the snapshot at ``v`` instead,
+   ``ray.put`` once per version and shared by every tracer through the object store.
+2. **Collect** (``wait_frame``): results are written into an :class:`Assembler` that accepts
+   only the frame, version and ranges it assigned; the frame is done when every line is.
+   Meanwhile failures are handled (below).
+3. **Learn**: the balancer observes each tracer's range, render seconds and per-line cost.
+
+``render_animation`` pipelines frames (Bikker's double buffering, 7.3.4): frame N+1's pose is
+committed to the graph and its render calls are submitted while frame N renders, so each
+tracer applies N+1's commits and starts N+1 as soon as it finishes N (Ray runs an actor's calls
+in submission order). At most ``KEEP_VERSIONS`` (2) frames are in flight: the replicas keep
+exactly the versions those frames need. The split of frame N+1 is chosen before frame N's
+timings are known, so the balancers learn with one frame of lag.
+
+Failures:
+
+- **Lost tracer.** A call that fails because its actor died (``RayActorError``) hands the
+  range's unfinished lines, split evenly, to the surviving ready tracers (preferring ones with
+  nothing left to do in that frame). Ray restarts the actor (``max_restarts=-1``); the
+  coordinator immediately queues a ``sync_snapshot`` call on it, which runs when the new process
+  is up. When it answers, the tracer is ready again and gets work from the next scheduled frame.
+- **Straggler.** When some ready tracer has nothing left to do in a frame while a range is still
+  running, and that range has run longer than ``straggler_factor`` x its predicted time plus
+  ``straggler_floor`` seconds, its unfinished lines are duplicated to an idle tracer; whichever
+  copy arrives first is used (the other is ignored when it arrives). The prediction is the
+  frame's own measurement: median apply seconds plus lines x median render seconds per line of
+  the ranges already finished in this frame.
+- **Out of sync.** A tracer that cannot reach the frame's version answers ``OutOfSync`` with
+  the version it holds; the range is resent with the commits from there, or a snapshot.
+- **Stale results.** Late answers (the losing copy of a duplicate, anything of a finished
+  frame) are collected and discarded; the assembler refuses results of another frame, version
+  or range.
+- Tracers may join (``add_tracers``) or leave (``remove_tracer``) between frames.
+
+The coordinator is not thread-safe: one caller drives it.
+"""
+
+import itertools
+import logging
+import math
+import time
+from collections import OrderedDict
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import ray
+from ray.exceptions import ActorDiedError, RayActorError, RayError, RayTaskError
+from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+from cluster.assembler import Assembler, runs
+from cluster.balance import BALANCERS, TracerReport, even_split, idle_percent, make_balancer
+from cluster.connect import connect
+from cluster.scene_graph import SceneGraph
+from tracer import scene_format as fmt
+from tracer.commit_codec import encode_commit, encode_state
+from tracer.scene_model import SceneState
+from worker.replica import KEEP_VERSIONS
+from worker.tracer_actor import LinesResult, OutOfSync, TracerInfo, remote_tracer
+
+log = logging.getLogger("tilerender.cluster")
+
+DEFAULT_BALANCER = "cost-aware" if "cost-aware" in BALANCERS else "none"
+STRAGGLER_FACTOR = 2.0
+"""A range is a straggler after this many times its predicted time ..."""
+STRAGGLER_FLOOR = 0.5
+"""... plus this many seconds (Ray call latency and timing jitter of tiny frames)."""
+MAX_ATTEMPTS = 8
+"""Times a line range may be handed out (failures, resyncs) before the frame is given up."""
+START_TIMEOUT = 300.0
+"""Seconds ``Coordinator()`` waits for its tracers to come up (first start may compile)."""
+STALL_TIMEOUT = 600.0
+"""Seconds a frame may go without any result arriving before it is given up."""
+POLL_SECONDS = 0.02
+PROBE_INTERVAL = 1.0
+"""Least seconds between two liveness probes of a tracer that is down."""
+SNAPSHOTS_KEPT = 4
+COMMITS_KEPT = 4096
+INLINE_COMMITS = 64 * 1024
+"""Commit buffers larger than this many bytes go through the object store (put once, shared
+by every tracer that needs the same buffer) instead of inside each render call."""
+BUFFERS_KEPT = 8
+
+
+class ClusterError(RuntimeError):
+    """A frame cannot be completed (no tracer left, a range failing again and again), or no
+    tracer would start; ``str()`` says which."""
+
+
+@dataclass(frozen=True)
+class RangeReport:
+    """One accepted result of a frame."""
+
+    tracer: str
+    y0: int
+    y1: int
+    seconds: float
+    apply_seconds: float
+    kind: str
+    """``split`` (the balancer's), ``reassigned`` (from a lost tracer), ``duplicate`` (of a
+    straggler) or a resent one (after ``OutOfSync``), named like the range it replaced."""
+    pid: int
+    node: str
+
+
+@dataclass
+class Frame:
+    """A finished frame and how it was made."""
+
+    frame: int
+    version: int
+    rgb: np.ndarray
+    """float32 (H, W, 3), linear radiance."""
+    cost: np.ndarray
+    """int64 (H,): work per line."""
+    camera: fmt.Camera
+    settings: fmt.RenderSettings
+    split: list[tuple[str, int, int]]
+    """The balancer's assignment: (tracer, y0, y1) in tracer order."""
+    ranges: list[RangeReport]
+    tracer_seconds: dict[str, float]
+    """Busy seconds (applying commits plus rendering) of each tracer that delivered lines."""
+    idle_percent: float
+    """Bikker's Table 16 measure over ``tracer_seconds``: time tracers waited for the slowest."""
+    wall_seconds: float
+    """From the moment the frame could start (submitted, and the previous frame done) to its
+    last line."""
+    overhead_seconds: float
+    """``wall_seconds`` minus the slowest tracer's busy seconds: scheduling, transfer, waits."""
+    failures: int = 0
+    reassigned: int = 0
+    duplicates: int = 0
+    resyncs: int = 0
+
+
+@dataclass(eq=False)
+class _Slot:
+    """The coordinator's view of one tracer actor."""
+
+    id: str
+    handle: Any
+    cpus: float
+    state: str = "starting"
+    """``starting``, ``ready``, ``recovering`` (died; Ray restarts it), ``dead`` or
+    ``retired``."""
+    synced: int | None = None
+    """The version the tracer will hold once its submitted calls ran (None: no scene)."""
+    probe: Any = None
+    probe_at: float = 0.0
+    died_probes: int = 0
+    failed_at: float = -math.inf
+    failures: int = 0
+    last_done: float = 0.0
+    """When its latest result arrived: a later call of it started no earlier."""
+    pid: int | None = None
+    node: str | None = None
+    incarnation: str | None = None
+    warm: dict | None = None
+
+
+@dataclass(eq=False)
+class _Task:
+    slot: _Slot
+    y0: int
+    y1: int
+    kind: str
+    attempt: int
+    submitted: float
+    duplicated: bool = False
+    resent: bool = False
+    """Sent again after OutOfSync (a second OutOfSync gets a snapshot)."""
+
+
+@dataclass(eq=False)
+class FrameJob:
+    """A frame in flight; ``Coordinator.wait_frame`` turns it into a :class:`Frame`."""
+
+    frame: int
+    state: SceneState
+    camera: fmt.Camera
+    settings: fmt.RenderSettings
+    sample_start: int
+    assembler: Assembler
+    submitted: float
+    split: list[tuple[str, int, int]] = field(default_factory=list)
+    pending: dict = field(default_factory=dict)
+    ranges: list[RangeReport] = field(default_factory=list)
+    busy: dict[str, float] = field(default_factory=dict)
+    primary: dict[str, LinesResult] = field(default_factory=dict)
+    result: Frame | None = None
+    failures: int = 0
+    reassigned: int = 0
+    duplicates: int = 0
+    resyncs: int = 0
+
+    @property
+    def version(self) -> int:
+        return self.state.version
+
+
+class Coordinator:
+    """Tracer actors on Ray and the frames they render. See the module docstring.
+
+    ``tracers``: how many tracer actors (default: one per Ray node with CPUs, each using all
+    of its node's CPUs). ``cpus_per_tracer``: CPUs each reserves and renders with (default: all
+    of its node's, or the cluster's CPUs divided by ``tracers``; fractions are allowed, a
+    tracer renders with ``max(1, floor(cpus))`` threads). ``balancer``: a name in
+    ``cluster.balance.BALANCERS``. ``delays``: test-only, seconds each tracer (by index)
+    sleeps before every render, to simulate slow tracers. Connects to Ray (an embedded local
+    instance) if this process is not connected yet.
+    """
+
+    def __init__(
+        self,
+        graph: SceneGraph,
+        tracers: int | None = None,
+        cpus_per_tracer: float | None = None,
+        balancer: str = DEFAULT_BALANCER,
+        *,
+        straggler_factor: float = STRAGGLER_FACTOR,
+        straggler_floor: float = STRAGGLER_FLOOR,
+        max_attempts: int = MAX_ATTEMPTS,
+        start_timeout: float = START_TIMEOUT,
+        stall_timeout: float = STALL_TIMEOUT,
+        delays: Sequence[float] | None = None,
+    ) -> None:
+        if tracers is not None and tracers < 1:
+            raise ValueError(f"tracers must be at least 1, not {tracers}")
+        if cpus_per_tracer is not None and not cpus_per_tracer > 0:
+            raise ValueError(f"cpus_per_tracer must be positive, not {cpus_per_tracer}")
+        if straggler_factor < 1.0 or straggler_floor < 0.0:
+            raise ValueError("straggler_factor must be >= 1 and straggler_floor >= 0")
+        self.balancer = make_balancer(balancer)
+        self.balancer_name = balancer
+        self.graph = graph
+        self.straggler_factor = straggler_factor
+        self.straggler_floor = straggler_floor
+        self.max_attempts = max_attempts
+        self.start_timeout = start_timeout
+        self.stall_timeout = stall_timeout
+        self.stats = {
+            "frames": 0,
+            "failures": 0,
+            "reassigned": 0,
+            "duplicates": 0,
+            "resyncs": 0,
+            "stale_discarded": 0,
+        }
+        self._slots: list[_Slot] = []
+        self._numbers = itertools.count()
+        self._snapshots: OrderedDict[int, Any] = OrderedDict()
+        self._commit_blobs: OrderedDict[int, bytes] = OrderedDict()
+        self._buffers: OrderedDict[tuple[int, int], Any] = OrderedDict()
+        self._orphans: dict = {}
+        self._last_done = 0.0
+        if not ray.is_initialized():
+            connect()
+        placements = self._placements(tracers, cpus_per_tracer)
+        self._default_cpus = placements[-1][0]
+        delays = list(delays or [])
+        try:
+            slots = [
+                self._start(cpus, options, delays[k] if k < len(delays) else 0.0)
+                for k, (cpus, options) in enumerate(placements)
+            ]
+            self._wait_started(slots, self.start_timeout, require_all=False)
+        except BaseException:
+            self.close()
+            raise
+
+    def use_balancer(self, name: str) -> None:
+        """Switch to a fresh balancer (from the next frame scheduled)."""
+        self.balancer = make_balancer(name)
+        self.balancer_name = name
+
+    # Tracers ---------------------------------------------------------------------------------
+
+    @staticmethod
+    def _placements(tracers: int | None, cpus: float | None) -> list[tuple[float, dict]]:
+        """(CPUs, actor options) of each tracer to start."""
+        nodes = [n for n in ray.nodes() if n.get("Alive") and n["Resources"].get("CPU", 0) > 0]
+        if not nodes:
+            raise ClusterError("the Ray cluster has no node with CPUs")
+        if tracers is None:
+            return [
+                (
+                    min(cpus, n["Resources"]["CPU"]) if cpus else n["Resources"]["CPU"],
+                    {"scheduling_strategy": NodeAffinitySchedulingStrategy(n["NodeID"], soft=True)},
+                )
+                for n in nodes
+            ]
+        if cpus is None:
+            total = sum(n["Resources"]["CPU"] for n in nodes)
+            cpus = max(0.01, math.floor(100 * total / tracers) / 100)
+        return [(cpus, {"scheduling_strategy": "SPREAD"})] * tracers
+
+    def _start(self, cpus: float, options: dict, delay: float = 0.0) -> _Slot:
+        tracer_id = f"t{next(self._numbers)}"
+        handle = remote_tracer(cpus, **options).remote(tracer_id, cpus, delay)
+        slot = _Slot(tracer_id, handle, cpus)
+        self._slots.append(slot)
+        self._send_probe(slot, time.perf_counter())
+        return slot
+
+    def _send_probe(self, slot: _Slot, now: float) -> None:
+        """Queue a snapshot of the current version on the tracer: it runs as soon as the actor
+        is up, and its answer says the tracer is ready."""
+        state = self.graph.state
+        slot.probe = slot.handle.sync_snapshot.remote(self._snapshot_ref(state))
+        slot.probe_at = now
+
+    def _wait_started(self, slots: list[_Slot], timeout: float, require_all: bool) -> None:
+        """Wait until ``slots`` answered their first snapshot (and loaded the render kernel)."""
+        deadline = time.perf_counter() + timeout
+        while True:
+            self._poll_slots()
+            waiting = [s for s in slots if s.state in ("starting", "recovering")]
+            if not waiting:
+                break
+            if time.perf_counter() > deadline:
+                if require_all or not any(s.state == "ready" for s in self._slots):
+                    names = ", ".join(s.id for s in waiting)
+                    raise ClusterError(
+                        f"tracers {names} did not start within {timeout:g} s "
+                        "(not enough free CPUs in the Ray cluster?)"
+                    )
+                break
+            probes = [s.probe for s in waiting if s.probe is not None]
+            if probes:
+                ray.wait(probes, num_returns=1, timeout=0.2)
+            else:
+                time.sleep(0.05)
+        warm = {s.id: s.handle.warm_up.remote() for s in slots if s.state == "ready"}
+        for slot in slots:
+            if slot.id in warm:
+                try:
+                    slot.warm = ray.get(
+                        warm[slot.id], timeout=max(1.0, deadline - time.perf_counter())
+                    )
+                    slot.pid, slot.node = slot.warm["pid"], slot.warm["node"]
+                except (RayError, TimeoutError) as error:  # it will be handled when it renders
+                    log.warning("tracer %s: warm-up failed: %s", slot.id, error)
+
+    def _poll_slots(self) -> None:
+        """Tracers that are starting or recovering become ready once their probe answers."""
+        now = time.perf_counter()
+        for slot in self._slots:
+            if slot.state not in ("starting", "recovering"):
+                continue
+            if slot.probe is None:
+                if now - slot.probe_at >= PROBE_INTERVAL:
+                    self._send_probe(slot, now)
+                continue
+            ready, _ = ray.wait([slot.probe], timeout=0)
+            if not ready:
+                continue
+            probe, slot.probe = slot.probe, None
+            try:
+                version = ray.get(probe)
+            except ActorDiedError as error:
+                slot.died_probes += 1
+                if slot.died_probes >= 3:
+                    slot.state = "dead"
+                    log.warning("tracer %s is dead: %s", slot.id, _first_line(error))
+                continue
+            except RayError as error:  # still restarting, or cannot be placed yet
+                log.info("tracer %s not back yet: %s", slot.id, _first_line(error))
+                continue
+            slot.state = "ready"
+            slot.synced = version
+            slot.died_probes = 0
+            slot.last_done = now
+
+    def add_tracers(
+        self, n: int = 1, cpus: float | None = None, wait: bool = True, delay: float = 0.0
+    ) -> list[str]:
+        """Start ``n`` more tracers (``cpus`` each, default as the last one started); they get
+        work from the next frame scheduled after they answer. ``wait``: return only once they
+        are ready. ``delay`` is the test-only render delay."""
+        cpus = cpus or self._default_cpus
+        slots = [self._start(cpus, {"scheduling_strategy": "SPREAD"}, delay) for _ in range(n)]
+        if wait:
+            self._wait_started(slots, self.start_timeout, require_all=True)
+        return [s.id for s in slots]
+
+    def remove_tracer(self, tracer_id: str) -> None:
+        """Stop a tracer for good; lines it still owes are handed to the others."""
+        slot = self._slot(tracer_id)
+        slot.state = "retired"
+        ray.kill(slot.handle, no_restart=True)
+
+    def tracer_handle(self, tracer_id: str):
+        """The Ray actor handle of a tracer (for tests and tools)."""
+        return self._slot(tracer_id).handle
+
+    def _slot(self, tracer_id: str) -> _Slot:
+        for slot in self._slots:
+            if slot.id == tracer_id:
+                return slot
+        raise KeyError(f"no tracer {tracer_id!r}")
+
+    def tracers(self) -> list[dict]:
+        """Every tracer the coordinator started: id, state, CPUs, synced version, pid, node,
+        failures seen."""
+        self._poll_slots()
+        return [
+            {
+                "id": s.id,
+                "state": s.state,
+                "cpus": s.cpus,
+                "threads": max(1, int(s.cpus)),
+                "synced": s.synced,
+                "pid": s.pid,
+                "node": s.node,
+                "failures": s.failures,
+                "warm_up": s.warm,
+            }
+            for s in self._slots
+        ]
+
+    def info(self, tracer_id: str, timeout: float = 30.0) -> TracerInfo:
+        """Ask a tracer about itself (its process, node, CPUs, versions held)."""
+        return ray.get(self._slot(tracer_id).handle.info.remote(), timeout=timeout)
+
+    @property
+    def ready(self) -> list[str]:
+        self._poll_slots()
+        return [s.id for s in self._slots if s.state == "ready"]
+
+    def close(self) -> None:
+        """Stop every tracer (Ray itself stays up)."""
+        for slot in self._slots:
+            if slot.state != "retired":
+                slot.state = "retired"
+                try:
+                    ray.kill(slot.handle, no_restart=True)
+                except RayError:  # pragma: no cover - already gone
+                    pass
+        self._orphans.clear()
+        self._snapshots.clear()
+        self._buffers.clear()
+
+    def __enter__(self) -> "Coordinator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # Scene data for tracers ------------------------------------------------------------------
+
+    def _snapshot_ref(self, state: SceneState):
+        """The encoded snapshot of ``state`` in the object store (put once per version)."""
+        ref = self._snapshots.get(state.version)
+        if ref is None:
+            ref = self._snapshots[state.version] = ray.put(encode_state(state))
+            while len(self._snapshots) > SNAPSHOTS_KEPT:
+                self._snapshots.popitem(last=False)
+        return ref
+
+    def _commits(self, since: int, version: int) -> list[bytes] | None:
+        """Encoded commits taking a replica from ``since`` to ``version``; None if the graph's
+        log does not reach back that far."""
+        commits = self.graph.commits_since(since)
+        if commits is None:
+            return None
+        blobs = []
+        for commit in commits:
+            if commit.version > version:
+                break
+            blob = self._commit_blobs.get(commit.version)
+            if blob is None:
+                blob = self._commit_blobs[commit.version] = encode_commit(commit)
+                while len(self._commit_blobs) > COMMITS_KEPT:
+                    self._commit_blobs.popitem(last=False)
+            blobs.append(blob)
+        return blobs
+
+    def _sync_for(self, have: int | None, job: FrameJob) -> tuple[Any, Any]:
+        """(commit buffer, snapshot ref or None) for a tracer holding ``have`` to render
+        ``job``. The buffer is a list of encoded commits, or the object-store reference of
+        one when it is large (Ray resolves either argument to the list in the tracer)."""
+        if have is not None and have >= job.version:
+            return [], None  # it should still hold the version; if not it says OutOfSync
+        commits = None if have is None else self._commits(have, job.version)
+        if commits is None:
+            return [], self._snapshot_ref(job.state)
+        if sum(len(c) for c in commits) <= INLINE_COMMITS:
+            return commits, None
+        key = (have, job.version)
+        ref = self._buffers.get(key)
+        if ref is None:
+            ref = self._buffers[key] = ray.put(commits)
+            while len(self._buffers) > BUFFERS_KEPT:
+                self._buffers.popitem(last=False)
+        return ref, None
+
+    # Scheduling ------------------------------------------------------------------------------
+
+    def submit_frame(
+        self,
+        frame: int = 0,
+        camera: fmt.Camera | None = None,
+        settings: fmt.RenderSettings | None = None,
+        sample_start: int = 0,
+    ) -> FrameJob:
+        """Schedule ``frame`` at the graph's current version and send every tracer its range
+        (with its commit buffer); returns at once. ``camera`` and ``settings`` default to the
+        scene's at that version."""
+        self._drain_orphans()
+        self._poll_slots()
+        state = self.graph.state
+        camera = camera or state.camera
+        settings = settings or state.render
+        if frame < 0 or sample_start < 0:
+            raise ValueError("frame and sample_start must be non-negative")
+        slots = self._schedulable()
+        now = time.perf_counter()
+        job = FrameJob(
+            frame=frame,
+            state=state,
+            camera=camera,
+            settings=settings,
+            sample_start=sample_start,
+            assembler=Assembler(frame, state.version, camera.width, camera.height),
+            submitted=now,
+        )
+        ranges = self.balancer.split(camera.height, [s.id for s in slots])
+        for slot, (y0, y1) in zip(slots, ranges, strict=True):
+            job.split.append((slot.id, y0, y1))
+            if y1 > y0:
+                self._submit(job, slot, y0, y1, "split", 1)
+        return job
+
+    def _schedulable(self) -> list[_Slot]:
+        """Ready tracers, waiting for one if there is none yet; tracers still busy with
+        results nobody needs (a straggler's stale range) sit this frame out if others can."""
+        deadline = time.perf_counter() + self.start_timeout
+        while True:
+            ready = [s for s in self._slots if s.state == "ready"]
+            if ready:
+                busy = {task.slot.id for task in self._orphans.values()}
+                free = [s for s in ready if s.id not in busy]
+                return free or ready
+            if not any(s.state in ("starting", "recovering") for s in self._slots):
+                raise ClusterError("no tracer is left to render with")
+            if time.perf_counter() > deadline:
+                raise ClusterError(f"no tracer became ready within {self.start_timeout:g} s")
+            probes = [s.probe for s in self._slots if s.probe is not None]
+            if probes:
+                ray.wait(probes, num_returns=1, timeout=0.2)
+            else:
+                time.sleep(0.05)
+            self._poll_slots()
+
+    def _submit(
+        self,
+        job: FrameJob,
+        slot: _Slot,
+        y0: int,
+        y1: int,
+        kind: str,
+        attempt: int,
+        sync: tuple[Any, Any] | None = None,
+    ) -> _Task:
+        commits, snapshot = sync if sync is not None else self._sync_for(slot.synced, job)
+        ref = slot.handle.render.remote(
+            job.frame,
+            job.version,
+            commits,
+            job.camera,
+            job.settings,
+            y0,
+            y1,
+            job.sample_start,
+            snapshot,
+        )
+        if snapshot is not None:
+            slot.synced = job.version
+        elif slot.synced is not None:  # the commits (if any) take it to the version
+            slot.synced = max(slot.synced, job.version)
+        job.assembler.assign(y0, y1)
+        task = job.pending[ref] = _Task(slot, y0, y1, kind, attempt, time.perf_counter())
+        return task
+
+    # Collecting ------------------------------------------------------------------------------
+
+    def wait_frame(self, job: FrameJob) -> Frame:
+        """Collect ``job``'s lines, surviving lost tracers and stragglers; returns the frame."""
+        if job.result is not None:
+            return job.result
+        last_progress = time.perf_counter()
+        while not job.assembler.complete:
+            if not job.pending:
+                for y0, y1 in job.assembler.missing():  # defensive: nothing owes these lines
+                    self._reassign(job, y0, y1, None, self.max_attempts)
+            refs = list(job.pending)
+            ready, _ = ray.wait(refs, num_returns=1, timeout=POLL_SECONDS)
+            if ready:
+                ready, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
+                for ref in ready:
+                    self._handle(job, ref)
+                last_progress = time.perf_counter()
+            elif time.perf_counter() - last_progress > self.stall_timeout:
+                raise ClusterError(
+                    f"frame {job.frame}: no tracer answered for {self.stall_timeout:g} s"
+                )
+            self._poll_slots()
+            if not job.assembler.complete:
+                self._check_stragglers(job)
+        return self._finish(job)
+
+    def render_frame(
+        self,
+        frame: int = 0,
+        camera: fmt.Camera | None = None,
+        settings: fmt.RenderSettings | None = None,
+        sample_start: int = 0,
+    ) -> Frame:
+        """Render one frame at the graph's current version."""
+        return self.wait_frame(self.submit_frame(frame, camera, settings, sample_start))
+
+    def render_animation(
+        self,
+        frames: Iterable[int] | None = None,
+        camera: fmt.Camera | None = None,
+        settings: fmt.RenderSettings | None = None,
+        sample_start: int = 0,
+        pipeline: int = KEEP_VERSIONS,
+    ) -> Iterator[Frame]:
+        """Yield the frames of the scene's animation (default all of them), in order. Before
+        frame N is scheduled its pose is committed (``SceneGraph.frame_commit``); up to
+        ``pipeline`` frames are in flight (at most ``KEEP_VERSIONS``), so frame N+1's commits
+        reach the tracers while frame N renders."""
+        if frames is None:
+            animation = self.graph.state.animation
+            frames = range(animation.frames if animation is not None else 1)
+        depth = max(1, min(pipeline, KEEP_VERSIONS))
+        upcoming = iter(frames)
+        in_flight: list[FrameJob] = []
+
+        def schedule_next() -> None:
+            number = next(upcoming, None)
+            if number is not None:
+                self.graph.frame_commit(number)
+                in_flight.append(self.submit_frame(number, camera, settings, sample_start))
+
+        for _ in range(depth):
+            schedule_next()
+        while in_flight:
+            done = self.wait_frame(in_flight.pop(0))
+            schedule_next()
+            yield done
+
+    def _handle(self, job: FrameJob, ref) -> None:
+        task = job.pending.pop(ref)
+        slot = task.slot
+        try:
+            out = ray.get(ref)
+        except RayActorError as error:
+            if task.submitted >= slot.failed_at:
+                self._tracer_failed(slot, error)
+            job.failures += 1
+            self._recover(job, task, error)
+            return
+        except RayTaskError as error:  # an exception inside the tracer: try elsewhere
+            log.warning("tracer %s failed on frame %d: %s", slot.id, job.frame, _first_line(error))
+            job.failures += 1
+            self._recover(job, task, error)
+            return
+        now = time.perf_counter()
+        slot.last_done = now
+        if isinstance(out, OutOfSync):
+            slot.synced = out.have
+            slot.incarnation = out.incarnation
+            job.resyncs += 1
+            if task.attempt >= self.max_attempts:
+                raise ClusterError(
+                    f"tracer {slot.id} cannot reach version {job.version}: {out.reason}"
+                )
+            if not job.assembler.missing(task.y0, task.y1):
+                return
+            if out.have is None or out.have >= job.version or task.resent:
+                sync = ([], self._snapshot_ref(job.state))  # it cannot get there by commits
+            else:
+                sync = self._sync_for(out.have, job)
+            again = self._submit(job, slot, task.y0, task.y1, task.kind, task.attempt + 1, sync)
+            again.resent = True
+            return
+        slot.pid, slot.node, slot.incarnation = out.pid, out.node, out.incarnation
+        if job.assembler.accept(out) <= 0:  # refused (-1), or lines another copy delivered
+            return
+        job.ranges.append(
+            RangeReport(
+                slot.id,
+                out.y0,
+                out.y1,
+                out.seconds,
+                out.apply_seconds,
+                task.kind,
+                out.pid,
+                out.node,
+            )
+        )
+        job.busy[slot.id] = job.busy.get(slot.id, 0.0) + out.seconds + out.apply_seconds
+        if task.kind == "split":
+            job.primary[slot.id] = out
+
+    def _tracer_failed(self, slot: _Slot, error: Exception) -> None:
+        """A call failed because the tracer's process died: Ray restarts it; queue a snapshot so
+        it is resynced (and known to be back) as soon as it is up."""
+        if slot.state in ("retired", "dead"):
+            return
+        now = time.perf_counter()
+        log.warning("tracer %s lost: %s", slot.id, _first_line(error))
+        slot.state = "recovering"
+        slot.synced = None
+        slot.failed_at = now
+        slot.failures += 1
+        self.stats["failures"] += 1
+        self._send_probe(slot, now)
+
+    def _recover(self, job: FrameJob, task: _Task, error: Exception) -> None:
+        """Hand the failed task's unfinished lines, not owed by another call, to others."""
+        owed = np.zeros(job.assembler.height, bool)
+        for other in job.pending.values():
+            owed[other.y0 : other.y1] = True
+        todo = ~job.assembler.done[task.y0 : task.y1] & ~owed[task.y0 : task.y1]
+        for y0, y1 in runs(todo, offset=task.y0):
+            if task.attempt >= self.max_attempts:
+                raise ClusterError(
+                    f"frame {job.frame}: lines [{y0}, {y1}) failed {task.attempt} times; last: "
+                    f"{_first_line(error)}"
+                )
+            self._reassign(job, y0, y1, task.slot, task.attempt)
+
+    def _reassign(
+        self, job: FrameJob, y0: int, y1: int, failed: _Slot | None, attempt: int
+    ) -> None:
+        """Split lines [y0, y1) evenly among the tracers that can take them."""
+        self._poll_slots()
+        ready = [s for s in self._slots if s.state == "ready" and s is not failed]
+        busy = {t.slot.id for t in job.pending.values()}
+        targets = [s for s in ready if s.id not in busy] or ready
+        if not targets:  # nobody ready: queue on tracers that are coming back
+            targets = [s for s in self._slots if s.state in ("starting", "recovering")]
+        if not targets:
+            raise ClusterError(f"frame {job.frame}: no tracer is left to render with")
+        pieces = even_split(y1 - y0, min(len(targets), y1 - y0))
+        for slot, (a, b) in zip(targets, pieces, strict=False):
+            if b > a:
+                self._submit(job, slot, y0 + a, y0 + b, "reassigned", attempt + 1)
+        job.reassigned += 1
+
+    def _check_stragglers(self, job: FrameJob) -> None:
+        """Duplicate a range that runs far longer than predicted to a tracer that is idle."""
+        if not job.ranges:
+            return
+        busy = {t.slot.id for t in job.pending.values()}
+        idle = [s for s in self._slots if s.state == "ready" and s.id not in busy]
+        if not idle:
+            return
+        per_line = float(np.median([r.seconds / (r.y1 - r.y0) for r in job.ranges]))
+        apply = float(np.median([r.apply_seconds for r in job.ranges]))
+        now = time.perf_counter()
+        for task in list(job.pending.values()):
+            if not idle:
+                break
+            if task.duplicated or task.kind == "duplicate":
+                continue
+            started = max(task.submitted, task.slot.last_done)
+            predicted = apply + per_line * (task.y1 - task.y0)
+            if now - started <= self.straggler_factor * predicted + self.straggler_floor:
+                continue
+            missing = job.assembler.missing(task.y0, task.y1)
+            if not missing:
+                continue
+            target = idle.pop(0)
+            log.info(
+                "frame %d: tracer %s ran lines [%d, %d) for %.2f s (predicted %.2f s): "
+                "duplicating to %s",
+                job.frame, task.slot.id, task.y0, task.y1, now - started, predicted, target.id,
+            )  # fmt: skip
+            for y0, y1 in missing:
+                self._submit(job, target, y0, y1, "duplicate", task.attempt)
+            task.duplicated = True
+            job.duplicates += 1
+
+    def _finish(self, job: FrameJob) -> Frame:
+        now = time.perf_counter()
+        for ref, task in job.pending.items():  # losing copies and the like: discard on arrival
+            self._orphans[ref] = task
+        job.pending.clear()
+        start = max(job.submitted, self._last_done)
+        self._last_done = now
+        busy = job.busy
+        slowest = max(busy.values(), default=0.0)
+        wall = now - start
+        frame = Frame(
+            frame=job.frame,
+            version=job.version,
+            rgb=job.assembler.rgb,
+            cost=job.assembler.cost,
+            camera=job.camera,
+            settings=job.settings,
+            split=list(job.split),
+            ranges=sorted(job.ranges, key=lambda r: r.y0),
+            tracer_seconds=dict(busy),
+            idle_percent=idle_percent(list(busy.values())) if busy else 0.0,
+            wall_seconds=wall,
+            overhead_seconds=max(0.0, wall - slowest),
+            failures=job.failures,
+            reassigned=job.reassigned,
+            duplicates=job.duplicates,
+            resyncs=job.resyncs,
+        )
+        self._observe(job, now)
+        job.result = frame
+        self.stats["frames"] += 1
+        for key in ("reassigned", "duplicates", "resyncs"):
+            self.stats[key] += getattr(job, key)
+        return frame
+
+    def _observe(self, job: FrameJob, now: float) -> None:
+        """Tell the balancer what each tracer of the split did. A straggler whose lines came
+        from a duplicate reports the time it had run (a lower bound); a lost tracer reports
+        nothing (the balancer keeps its prediction for those lines)."""
+        reports = []
+        by_id = {s.id: s for s in self._slots}
+        for tracer_id, y0, y1 in job.split:
+            result = job.primary.get(tracer_id)
+            if y1 == y0:
+                reports.append(TracerReport(tracer_id, y0, y1, 0.0, np.zeros(0, np.int64)))
+            elif result is not None:
+                reports.append(TracerReport(tracer_id, y0, y1, result.seconds, result.cost))
+            elif by_id[tracer_id].state == "ready":
+                seconds = now - max(job.submitted, by_id[tracer_id].last_done)
+                cost = job.assembler.cost[y0:y1].copy()
+                reports.append(TracerReport(tracer_id, y0, y1, seconds, cost))
+        if reports:
+            self.balancer.observe(job.camera.height, reports)
+
+    def _drain_orphans(self) -> None:
+        """Collect late answers of finished frames and discard them (failures still count)."""
+        if not self._orphans:
+            return
+        refs = list(self._orphans)
+        ready, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
+        for ref in ready:
+            task = self._orphans.pop(ref)
+            try:
+                ray.get(ref)
+            except RayActorError as error:
+                if task.submitted >= task.slot.failed_at:
+                    self._tracer_failed(task.slot, error)
+                continue
+            except RayTaskError:
+                continue
+            task.slot.last_done = time.perf_counter()
+            self.stats["stale_discarded"] += 1
+
+    # Queries ---------------------------------------------------------------------------------
+
+    def query(self, origins, directions, t_max=None, timeout: float = 60.0):
+        """Ray queries (Bikker 7.3.6) on a ready tracer's newest version."""
+        slots = self._schedulable()
+        ref = slots[0].handle.query.remote(
+            np.asarray(origins, float), np.asarray(directions, float), None, t_max
+        )
+        return ray.get(ref, timeout=timeout)
+
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__

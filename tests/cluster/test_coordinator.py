@@ -1,0 +1,447 @@
+"""The coordinator renders through tracer actors exactly what ``render_image`` renders, for any
+number of tracers and any balancer, and keeps doing so when tracers are killed, stall, join or
+leave, when commits arrive while frames render, and when a Ray node disappears mid-job.
+
+One embedded Ray serves the module (the node-removal test, last, runs its own cluster). Images
+are 32x24 at 2 spp: milliseconds per frame, so test-only render delays (``delays`` /
+``set_delay``) make tracers slow enough to kill mid-render or to straggle."""
+
+import itertools
+import os
+import signal
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+import ray
+import trimesh
+
+from cluster.assembler import Assembler
+from cluster.balance import BALANCERS
+from cluster.connect import ClusterUnreachable, connect, disconnect, probe
+from cluster.coordinator import INLINE_COMMITS, Coordinator
+from cluster.scene_graph import SceneGraph
+from tests.scene_states import translation
+from tests.worker.test_replica import CAMERA, studio
+from tracer.commit_codec import encode_commit, encode_state
+from tracer.compile import compile_scene
+from tracer.render import render_image
+from tracer.scene_model import Animation, CameraKey, NodeKey, SceneState
+from worker.tracer_actor import LinesResult
+
+MOVE = {"op": "set_transform", "node": "box-a", "transform": {"translate": [0.5, 1.2, 0.3]}}
+CAMERA_MOVE = {
+    "op": "set_camera",
+    "camera": {**CAMERA.model_dump(), "position": [1.0, 2.5, 8.0]},
+}
+
+
+def reference(state: SceneState, frame: int = 0, sample_start: int = 0) -> np.ndarray:
+    """The same frame from one process and one call: tracer.render.render_image."""
+    return render_image(compile_scene(state), frame=frame, sample_start=sample_start)[0]
+
+
+def animated(frames: int = 32) -> SceneState:
+    """The studio with box-a (rigid) sliding and turning, and the camera dollying in."""
+    base = studio()
+    quarter = (0.7071067811865476, 0.0, 0.7071067811865476, 0.0)
+    animation = Animation(
+        fps=8.0,
+        frames=frames,
+        nodes={
+            2: (
+                NodeKey(0.0, (-1.5, 0.5, 0.0), (1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0)),
+                NodeKey(frames / 8.0, (1.0, 0.9, 1.0), quarter, (0.8, 1.2, 0.8)),
+            )
+        },
+        camera=(
+            CameraKey(0.0, (0.0, 3.0, 9.0), (0.0, 0.5, 0.0), (0.0, 1.0, 0.0), 40.0),
+            CameraKey(frames / 8.0, (1.5, 2.5, 6.0), (0.0, 0.5, 0.0), (0.0, 1.0, 0.0), 50.0),
+        ),
+    )
+    nodes = dict(base.nodes)
+    nodes[2] = type(nodes[2])(2, "box-a", None, translation(-1.5, 0.5, 0), "rigid", "box", "red")
+    return SceneState(
+        version=0,
+        meshes=base.meshes,
+        materials=base.materials,
+        nodes=nodes,
+        camera=base.camera,
+        render=base.render,
+        sky=base.sky,
+        animation=animation,
+    )
+
+
+def animation_references(state: SceneState, frames) -> dict[int, np.ndarray]:
+    """Each frame of the animation rendered from scratch after replaying its poses."""
+    graph = SceneGraph(state)
+    out = {}
+    for f in frames:
+        graph.frame_commit(f)
+        out[f] = reference(graph.state, frame=f)
+    return out
+
+
+def assert_covers(frame, height: int) -> None:
+    edges = [(y0, y1) for _, y0, y1 in frame.split]
+    assert edges[0][0] == 0 and edges[-1][1] == height
+    assert all(a[1] == b[0] for a, b in itertools.pairwise(edges))
+
+
+@pytest.fixture(scope="module")
+def ray_session():
+    """One embedded Ray (2 CPUs) for the module."""
+    connection = connect(num_cpus=2)
+    yield connection
+    if connection.started:
+        disconnect()
+
+
+@pytest.fixture
+def local_ray(ray_session):
+    if not ray.is_initialized():  # the node-removal test replaced it
+        connect(num_cpus=2)
+
+
+_coordinators: dict[int, Coordinator] = {}
+
+
+@pytest.fixture
+def shared(local_ray):
+    """A coordinator with N tracers, kept for the tests that ask for the same N (only one is
+    alive at a time: they share the 2 CPUs)."""
+
+    def get(n: int) -> Coordinator:
+        if n not in _coordinators:
+            for other in _coordinators.values():
+                other.close()
+            _coordinators.clear()
+            _coordinators[n] = Coordinator(SceneGraph(studio()), tracers=n)
+        return _coordinators[n]
+
+    return get
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _close_shared():
+    yield
+    for coordinator in _coordinators.values():
+        coordinator.close()
+    _coordinators.clear()
+
+
+@pytest.fixture
+def fresh(local_ray):
+    """Coordinators made by the test, closed after it (and the shared one closed before)."""
+    for other in _coordinators.values():
+        other.close()
+    _coordinators.clear()
+    made = []
+
+    def make(*args, **kwargs) -> Coordinator:
+        made.append(Coordinator(*args, **kwargs))
+        return made[-1]
+
+    yield make
+    for coordinator in made:
+        coordinator.close()
+
+
+# --- pixels ---------------------------------------------------------------------------------
+
+
+CASES = [(n, name) for n in (1, 2, 3) for name in sorted(BALANCERS)]
+
+
+@pytest.mark.parametrize(("tracers", "balancer"), CASES, ids=[f"{n}-{b}" for n, b in CASES])
+def test_frames_equal_render_image(shared, tracers, balancer):
+    """Frames at several versions, frame numbers and sample offsets (so the balancer has
+    learned and re-split between them) equal render_image bit for bit."""
+    coordinator = shared(tracers)
+    coordinator.use_balancer(balancer)
+    graph = coordinator.graph
+    for number, edit, sample_start in [(0, None, 0), (1, MOVE, 0), (7, CAMERA_MOVE, 3)]:
+        if edit is not None:
+            graph.commit([edit])
+        frame = coordinator.render_frame(number, sample_start=sample_start)
+        assert frame.version == graph.version and frame.frame == number
+        assert frame.rgb.dtype == np.float32 and frame.rgb.shape == (24, 32, 3)
+        assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
+        assert frame.cost.shape == (24,) and frame.cost.min() > 0
+        assert len(frame.split) == tracers
+        assert {r.tracer for r in frame.ranges} == {t for t, y0, y1 in frame.split if y1 > y0}
+        assert_covers(frame, 24)
+        assert 0.0 <= frame.idle_percent < 100.0 and frame.wall_seconds > 0.0
+        assert (frame.failures, frame.duplicates) == (0, 0)
+
+
+def test_default_is_one_tracer_per_node_with_all_its_cpus(fresh):
+    coordinator = fresh(SceneGraph(studio()))
+    (tracer,) = coordinator.tracers()
+    assert tracer["state"] == "ready" and tracer["cpus"] == 2.0 and tracer["threads"] == 2
+    assert tracer["warm_up"]["cache_misses"] == 0  # loaded from the shared kernel cache
+    info = coordinator.info(tracer["id"])
+    assert info.threads == 2 and info.node == ray.get_runtime_context().get_node_id()
+    assert info.cache_dir == os.environ["NUMBA_CACHE_DIR"]
+    hits = coordinator.query([[-1.5, 3.5, 0.1]], [[0.0, -1.0, 0.0]])  # picking, on a tracer
+    assert hits.material == ["white"] and hits.node[0] == 3
+
+
+def test_a_commit_never_leaks_into_a_frame_scheduled_before_it(fresh):
+    """Frame N is scheduled at version v; a commit (v + 1) lands while it renders and frame
+    N + 1 is scheduled after it: N shows v, N + 1 shows v + 1."""
+    coordinator = fresh(SceneGraph(studio()), tracers=2, delays=[0.4, 0.4])
+    graph = coordinator.graph
+    before = graph.state
+    job = coordinator.submit_frame(0)
+    time.sleep(0.1)
+    graph.commit([MOVE])
+    after = graph.state
+    later = coordinator.submit_frame(1)
+    first, second = coordinator.wait_frame(job), coordinator.wait_frame(later)
+    assert (first.version, second.version) == (before.version, after.version)
+    assert np.array_equal(first.rgb, reference(before, 0))
+    assert np.array_equal(second.rgb, reference(after, 1))
+    assert not np.array_equal(reference(after, 0), first.rgb)  # the commit changes pixels
+
+
+# --- failures -------------------------------------------------------------------------------
+
+
+def wait_ready(coordinator: Coordinator, tracer: str, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while tracer not in coordinator.ready:
+        assert time.monotonic() < deadline, f"{tracer} did not come back"
+        time.sleep(0.1)
+
+
+def test_a_killed_tracer_loses_no_frame_of_an_animation(fresh):
+    """ray.kill (restart allowed) of one of two tracers during a 32-frame pipelined
+    animation: every frame arrives, each equal to render_image of its pose; the tracer is
+    restarted, resynced by snapshot, and renders again."""
+    state = animated(32)
+    expected = animation_references(state, range(32))
+    # Even split, so t1 always has lines; no straggler rule, so only the loss is detected.
+    graph = SceneGraph(state)
+    coordinator = fresh(graph, tracers=2, balancer="none", straggler_floor=30, delays=[0.1, 0.1])
+    victim = coordinator.info("t1")
+    frames = []
+    for frame in coordinator.render_animation():
+        frames.append(frame)
+        if frame.frame == 4:
+            ray.kill(coordinator.tracer_handle("t1"), no_restart=False)
+    assert [f.frame for f in frames] == list(range(32))
+    for frame in frames:
+        assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
+    assert coordinator.stats["failures"] == 1
+    hit = [f for f in frames if f.failures]  # the frames t1 had calls for when it died
+    assert hit and hit[0].frame in (5, 6) and all(f.frame <= 8 for f in hit)
+    for frame in hit:
+        assert frame.reassigned >= 1 and ("t0", "reassigned") in {
+            (r.tracer, r.kind) for r in frame.ranges
+        }
+        assert "t1" not in {r.tracer for r in frame.ranges}
+    wait_ready(coordinator, "t1")
+    extra = coordinator.render_frame(31)
+    assert np.array_equal(extra.rgb, expected[31])
+    back = [r for r in extra.ranges if r.tracer == "t1"]
+    assert back and back[0].pid != victim.pid
+    assert coordinator.info("t1").incarnation != victim.incarnation
+
+
+def test_sigkill_mid_range_is_split_among_survivors(fresh):
+    """SIGKILL of a tracer's process while it renders its range: the range goes to the other
+    tracers, the frame completes without waiting for the dead one, and the restarted tracer
+    gets work from a later frame."""
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=3, cpus_per_tracer=0.5, straggler_floor=30)
+    expected = reference(graph.state, 2)
+    victim = coordinator.info("t1")
+    ray.get(coordinator.tracer_handle("t1").set_delay.remote(20.0))
+    job = coordinator.submit_frame(2)
+    time.sleep(0.5)
+    os.kill(victim.pid, signal.SIGKILL)
+    frame = coordinator.wait_frame(job)
+    assert np.array_equal(frame.rgb, expected)
+    assert frame.failures >= 1 and frame.reassigned >= 1 and frame.wall_seconds < 15.0
+    assert {r.tracer for r in frame.ranges} == {"t0", "t2"}
+    assert {r.kind for r in frame.ranges} >= {"split", "reassigned"}
+    wait_ready(coordinator, "t1")
+    again = coordinator.render_frame(3)
+    assert np.array_equal(again.rgb, reference(graph.state, 3))
+    assert any(r.tracer == "t1" and r.pid != victim.pid for r in again.ranges)
+
+
+def test_a_straggler_is_duplicated_and_its_late_answer_discarded(fresh):
+    """One tracer stalls (test-only delay): once the other is idle and the range has run
+    longer than 2x its prediction plus the floor, an idle tracer renders a copy and the frame
+    completes; the straggler's late result is discarded."""
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=2, balancer="none", straggler_floor=0.3)
+    handle = coordinator.tracer_handle("t1")
+    ray.get(handle.set_delay.remote(2.5))
+    start = time.perf_counter()
+    frame = coordinator.render_frame(0)
+    assert time.perf_counter() - start < 2.0
+    assert np.array_equal(frame.rgb, reference(graph.state, 0))
+    assert frame.duplicates == 1 and frame.failures == 0
+    assert {(r.tracer, r.kind) for r in frame.ranges} == {("t0", "split"), ("t0", "duplicate")}
+    ray.get(handle.set_delay.remote(0.0))  # runs after the straggling render finished
+    following = coordinator.render_frame(1)
+    assert coordinator.stats["stale_discarded"] >= 1
+    assert np.array_equal(following.rgb, reference(graph.state, 1))
+
+
+def test_tracers_join_and_leave_between_frames(fresh):
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=1, cpus_per_tracer=1)
+    first = coordinator.render_frame(0)
+    assert [t for t, _, _ in first.split] == ["t0"]
+    assert coordinator.add_tracers(1) == ["t1"]
+    graph.commit([MOVE])
+    second = coordinator.render_frame(1)
+    assert [t for t, _, _ in second.split] == ["t0", "t1"]
+    assert {r.tracer for r in second.ranges} == {"t0", "t1"}
+    coordinator.remove_tracer("t0")
+    third = coordinator.render_frame(2)
+    assert [t for t, _, _ in third.split] == ["t1"]
+    for frame, number in [(first, 0), (second, 1), (third, 2)]:
+        assert np.array_equal(frame.rgb, reference(graph.state if number else studio(), number))
+
+
+def test_tracers_behind_the_log_or_reset_are_resynced(fresh):
+    """A log too short to catch up (log_limit=1) means a snapshot; a tracer whose replica went
+    back behind the coordinator's back answers OutOfSync and is resent what it needs."""
+    graph = SceneGraph(studio(), log_limit=1)
+    coordinator = fresh(graph, tracers=2)
+    coordinator.render_frame(0)
+    for edit in (MOVE, CAMERA_MOVE, {"op": "set_sky", "radiance": [0.2, 0.3, 0.4]}):
+        graph.commit([edit])
+    frame = coordinator.render_frame(1)
+    assert np.array_equal(frame.rgb, reference(graph.state, 1))
+    ray.get(coordinator.tracer_handle("t0").sync_snapshot.remote(encode_state(studio())))
+    frame = coordinator.render_frame(2)
+    assert frame.resyncs >= 1
+    assert np.array_equal(frame.rgb, reference(graph.state, 2))
+    assert all(t["synced"] == graph.version for t in coordinator.tracers())
+
+
+def test_large_commit_buffers_go_through_the_object_store(fresh):
+    """A commit buffer over INLINE_COMMITS bytes is put once and shared by reference."""
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=2)
+    coordinator.render_frame(0)
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.6)
+    op = {"op": "replace_mesh", "mesh": "blob", "vertices": sphere.vertices, "faces": sphere.faces}
+    commit = graph.commit([op])
+    assert len(encode_commit(commit)) > INLINE_COMMITS
+    frame = coordinator.render_frame(1)
+    assert np.array_equal(frame.rgb, reference(graph.state, 1))
+    assert list(coordinator._buffers) == [(0, 1)]  # one put for both tracers
+
+
+def test_the_assembler_takes_only_what_it_assigned():
+    """Results of another frame, version or range, or of the wrong shape, are refused; a range
+    delivered twice writes nothing new."""
+    assembler = Assembler(frame=3, version=7, width=4, height=6)
+    assembler.assign(0, 4)
+    assembler.assign(4, 6)
+
+    def result(frame=3, version=7, y0=0, y1=4, value=1.0):
+        rgb = np.full((y1 - y0, 4, 3), value, np.float32)
+        cost = np.arange(y0, y1, dtype=np.int64)
+        return LinesResult("t", frame, version, y0, y1, rgb, cost, 0.1, 0.0, 1, "n", "i")
+
+    for stale in (result(frame=2), result(version=6), result(y0=1), result(y1=3)):
+        assert assembler.accept(stale) == -1
+    bad = result()
+    bad.rgb = bad.rgb[:, :3]
+    assert assembler.accept(bad) == -1
+    assert assembler.rejected == 5 and not assembler.done.any()
+    assert assembler.accept(result()) == 4
+    assert assembler.accept(result(value=5.0)) == 0  # already written: first one wins
+    assert assembler.missing() == [(4, 6)] and not assembler.complete
+    assert assembler.accept(result(y0=4, y1=6, value=2.0)) == 2
+    assert assembler.complete and assembler.rgb[:4].max() == 1.0 and assembler.rgb[4:].min() == 2
+    assert list(assembler.cost) == list(range(6))
+
+
+def test_an_unknown_balancer_is_refused_before_any_tracer_starts(local_ray):
+    with pytest.raises(ValueError, match="robin-hood"):
+        Coordinator(SceneGraph(studio()), balancer="fastest")
+
+
+def test_unreachable_addresses_fail_fast(local_ray):
+    """A closed port, a bad address and a server that is not Ray: ClusterUnreachable within
+    seconds, even though this process is already connected to a Ray."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        closed = s.getsockname()[1]
+    start = time.monotonic()
+    with pytest.raises(ClusterUnreachable, match="refused"):
+        connect(f"127.0.0.1:{closed}")
+    with pytest.raises(ClusterUnreachable, match="not a Ray address"):
+        connect("no-port-here")
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def answer_http() -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(1024)
+            conn.sendall(b"HTTP/1.1 400 Bad Request\r\n\r\n")
+
+    thread = threading.Thread(target=answer_http, daemon=True)
+    thread.start()
+    with server, pytest.raises(ClusterUnreachable, match="not Ray"):
+        probe(f"127.0.0.1:{server.getsockname()[1]}")
+    thread.join(5)
+    probe(ray.get_runtime_context().gcs_address)  # the real thing answers
+    assert time.monotonic() - start < 10.0
+
+
+# --- a node disappears ----------------------------------------------------------------------
+
+
+def test_a_node_removed_mid_animation_does_not_stop_the_job():
+    """A head without CPUs and two worker nodes of one CPU, one tracer each; one worker node
+    is removed while the animation renders. Every frame arrives, equal to render_image; the
+    lost tracer cannot be restarted (no free CPU) and the job goes on without it."""
+    from ray.cluster_utils import Cluster
+
+    for other in _coordinators.values():
+        other.close()
+    _coordinators.clear()
+    disconnect()
+    state = animated(16)
+    expected = animation_references(state, range(16))
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0})
+    coordinator = None
+    try:
+        workers = [cluster.add_node(num_cpus=1) for _ in range(2)]
+        cluster.wait_for_nodes()
+        connect(cluster.address)
+        coordinator = Coordinator(SceneGraph(state), straggler_floor=30, delays=[0.05, 0.05])
+        tracers = coordinator.tracers()
+        assert [t["cpus"] for t in tracers] == [1.0, 1.0]
+        nodes = {coordinator.info(t["id"]).node for t in tracers}
+        assert nodes == {w.node_id for w in workers}
+        doomed = next(w for w in workers if w.node_id == coordinator.info("t1").node)
+        frames = []
+        for frame in coordinator.render_animation():
+            frames.append(frame)
+            if frame.frame == 3:
+                cluster.remove_node(doomed)
+        assert [f.frame for f in frames] == list(range(16))
+        for frame in frames:
+            assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
+        assert coordinator.stats["failures"] >= 1 and coordinator.stats["reassigned"] >= 1
+        assert {r.tracer for f in frames[8:] for r in f.ranges} == {"t0"}
+        assert coordinator.tracers()[1]["state"] in ("recovering", "dead")  # nowhere to go
+    finally:
+        if coordinator is not None:
+            coordinator.close()
+        disconnect()
+        cluster.shutdown()

@@ -1,0 +1,182 @@
+"""The tracer: in-process it renders what ``render_image`` renders, at exactly the version asked
+for, from a snapshot plus commit buffers, and says when it cannot; as a Ray actor it gets its
+snapshot through the object store, warm-starts from the shared kernel cache, and comes back
+empty (and says so) after Ray restarts its process."""
+
+import os
+import time
+
+import numpy as np
+import pytest
+import ray
+
+from cluster.connect import connect, disconnect
+from cluster.scene_graph import SceneGraph
+from tests.worker.test_replica import studio
+from tracer.commit_codec import encode_commit, encode_state
+from tracer.compile import compile_scene
+from tracer.render import render_image
+from worker.tracer_actor import LinesResult, OutOfSync, Tracer, remote_tracer
+
+MOVE = {"op": "set_transform", "node": "box-a", "transform": {"translate": [0.5, 1.2, 0.3]}}
+SKY = {"op": "set_sky", "radiance": [0.3, 0.2, 0.1]}
+
+
+def reference(state, frame=0, sample_start=0) -> np.ndarray:
+    return render_image(compile_scene(state), frame=frame, sample_start=sample_start)[0]
+
+
+def rendered(tracer, version, commits=(), frame=0, ranges=None, **kw) -> np.ndarray:
+    """The frame assembled from ``tracer.render`` calls over ``ranges`` (default one call)."""
+    height = studio().camera.height
+    parts = []
+    for y0, y1 in ranges or [(0, height)]:
+        out = tracer.render(frame, version, list(commits), None, None, y0, y1, **kw)
+        assert isinstance(out, LinesResult), out
+        assert (out.frame, out.version, out.y0, out.y1) == (frame, version, y0, y1)
+        assert out.rgb.dtype == np.float32 and out.cost.dtype == np.int64
+        assert out.cost.shape == (y1 - y0,)
+        parts.append(out.rgb)
+    return np.concatenate(parts)
+
+
+# --- the plain class ------------------------------------------------------------------------
+
+
+def test_tracer_renders_like_render_image():
+    """Any split of the lines, any thread count: the pixels of render_image, bit for bit."""
+    state = studio()
+    tracer = Tracer("t", cpus=2)
+    assert tracer.threads == 2 and tracer.version() is None
+    assert tracer.sync_snapshot(encode_state(state)) == 0
+    expected = reference(state, frame=5, sample_start=3)
+    assert np.array_equal(rendered(tracer, 0, frame=5, sample_start=3), expected)
+    one = Tracer("u", cpus=0.5)  # a fractional CPU still renders, on one thread
+    assert one.threads == 1
+    one.sync_snapshot(encode_state(state))
+    split = [(0, 7), (7, 8), (8, 24)]
+    assert np.array_equal(rendered(one, 0, frame=5, ranges=split, sample_start=3), expected)
+
+
+def test_commits_reach_exactly_the_version_asked_for():
+    """Commit buffers apply in order and idempotently; the frame renders at its own version
+    even after newer commits arrived (the replica keeps two)."""
+    graph = SceneGraph(studio())
+    tracer = Tracer("t", cpus=1)
+    tracer.sync_snapshot(encode_state(graph.snapshot()))
+    first = graph.commit([MOVE])
+    state_1 = graph.state
+    second = graph.commit([SKY])
+    blobs = [encode_commit(first), encode_commit(second)]
+    assert np.array_equal(rendered(tracer, 2, blobs), reference(graph.state))
+    assert np.array_equal(rendered(tracer, 2, blobs), reference(graph.state))  # delivered twice
+    assert np.array_equal(rendered(tracer, 1, []), reference(state_1))  # the older version
+
+
+def test_out_of_sync_says_what_it_holds():
+    """No scene, a gap in the commits, a version no longer held: OutOfSync with the version
+    held, nothing rendered; a snapshot sent with the call repairs it."""
+    graph = SceneGraph(studio())
+    snapshot_0 = encode_state(graph.snapshot())
+    tracer = Tracer("t", cpus=1)
+    out = tracer.render(0, 0, [], None, None, 0, 24)
+    assert isinstance(out, OutOfSync) and out.have is None and out.incarnation
+    tracer.sync_snapshot(snapshot_0)
+    commits = [encode_commit(graph.commit([MOVE])) for _ in range(1)]
+    commits += [encode_commit(graph.commit([SKY])), encode_commit(graph.commit([MOVE]))]
+    gap = tracer.render(0, 3, [commits[0], commits[2]], None, None, 0, 24)
+    assert isinstance(gap, OutOfSync) and gap.have == 1 and "cannot apply" in gap.reason
+    assert isinstance(tracer.render(0, 3, commits, None, None, 0, 24), LinesResult)
+    dropped = tracer.render(0, 0, [], None, None, 0, 24)  # holds versions 2 and 3 only
+    assert isinstance(dropped, OutOfSync) and dropped.have == 3
+    repaired = rendered(tracer, 0, [], snapshot=snapshot_0)
+    assert np.array_equal(repaired, reference(studio()))
+
+
+def test_query_and_info():
+    tracer = Tracer("probe", cpus=3)
+    tracer.sync_snapshot(encode_state(studio()))
+    hits = tracer.query([[-1.5, 3.5, 0.1]], [[0.0, -1.0, 0.0]])
+    assert hits.material == ["white"] and hits.node[0] == 3
+    info = tracer.info()
+    assert (info.id, info.cpus, info.threads, info.version, info.pid) == (
+        "probe",
+        3.0,
+        3,
+        0,
+        os.getpid(),
+    )
+
+
+# --- as a Ray actor -------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ray_session():
+    """One embedded Ray for the module (started only if this process has none)."""
+    connection = connect(num_cpus=2)
+    yield connection
+    if connection.started:
+        disconnect()
+
+
+def test_actor_renders_from_a_snapshot_in_the_object_store(ray_session):
+    """The snapshot is put once; the actor receives it by reference, renders in its own
+    process and reports its pid and node."""
+    graph = SceneGraph(studio())
+    expected = reference(graph.state, frame=2)  # also compiles the kernel for the cache
+    actor = remote_tracer(1).remote("a", 1)
+    try:
+        snapshot = ray.put(encode_state(graph.snapshot()))
+        assert ray.get(actor.sync_snapshot.remote(snapshot)) == 0
+        out = ray.get(actor.render.remote(2, 0, [], None, None, 0, 24, 0))
+        assert np.array_equal(out.rgb, expected)
+        assert out.pid != os.getpid()
+        assert out.node == ray.get_runtime_context().get_node_id()
+        commit = encode_commit(graph.commit([MOVE]))
+        out = ray.get(actor.render.remote(2, 1, [commit], None, None, 0, 24, 0))
+        assert np.array_equal(out.rgb, reference(graph.state, frame=2))
+        assert ray.get(actor.version.remote()) == 1
+    finally:
+        ray.kill(actor)
+
+
+def test_actor_warm_starts_from_the_shared_kernel_cache(ray_session):
+    """numba's cache directory is the driver's, and the actor loads the render kernel from it
+    (a cache hit, no compile) once the driver has compiled it."""
+    reference(studio())
+    actor = remote_tracer(1).remote("w", 1)
+    try:
+        ray.get(actor.sync_snapshot.remote(encode_state(studio())))
+        warm = ray.get(actor.warm_up.remote())
+        assert warm["cache_dir"] == os.environ["NUMBA_CACHE_DIR"]
+        assert warm["cache_misses"] == 0 and warm["cache_hits"] >= 1
+        assert warm["seconds"] < 10.0
+    finally:
+        ray.kill(actor)
+
+
+def test_a_restarted_actor_comes_back_empty_and_says_so(ray_session):
+    """Killed mid-render, the call fails with RayActorError; Ray restarts the process (new pid
+    and incarnation) with no scene, so a render answers OutOfSync until a snapshot comes."""
+    state = studio()
+    actor = remote_tracer(1).remote("k", 1, 5.0)  # test-only delay: 5 s before each render
+    try:
+        ray.get(actor.sync_snapshot.remote(encode_state(state)))
+        before = ray.get(actor.info.remote())
+        pending = actor.render.remote(0, 0, [], None, None, 0, 24, 0)
+        time.sleep(0.5)
+        ray.kill(actor, no_restart=False)
+        with pytest.raises(ray.exceptions.RayActorError):
+            ray.get(pending, timeout=60)
+        after = ray.get(actor.info.remote(), timeout=60)
+        assert after.pid != before.pid and after.incarnation != before.incarnation
+        assert after.version is None
+        ray.get(actor.set_delay.remote(0.0))
+        out = ray.get(actor.render.remote(0, 0, [], None, None, 0, 24, 0))
+        assert isinstance(out, OutOfSync) and out.have is None
+        snapshot = ray.put(encode_state(state))
+        out = ray.get(actor.render.remote(0, 0, [], None, None, 0, 24, 0, snapshot))
+        assert np.array_equal(out.rgb, reference(state))
+    finally:
+        ray.kill(actor)

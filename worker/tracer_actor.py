@@ -1,0 +1,265 @@
+"""A Brigade tracer (Bikker 7.3.1-7.3.4) as a Ray actor.
+
+:class:`Tracer` is a plain class that owns a :class:`~worker.replica.SceneReplica` and renders
+line ranges of frames with :func:`tracer.render.render_lines`; :func:`remote_tracer` makes the
+Ray actor class from it (one process per tracer, restarted by Ray when it dies). Keeping the
+class plain lets the tests drive it in-process, without Ray.
+
+A render call carries everything the tracer needs to reach the frame's version: the commit
+buffer since the version the coordinator believes the tracer holds (encoded commits, applied
+in order and idempotently), or a snapshot when the coordinator knows it has none. If the
+replica still cannot produce the version (a restarted process, a gap in the commits, or a
+version it no longer keeps) the call returns :class:`OutOfSync` instead of pixels, saying which
+version it holds, and the coordinator resends the range with the right commits or a snapshot.
+
+Rendering uses as many threads as the CPUs the actor reserved (at least one), so tracers never
+oversubscribe the cores Ray gave them.
+"""
+
+import os
+import time
+import uuid
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracer import numba_cache
+from tracer import scene_format as fmt
+from tracer.errors import SceneError
+from tracer.query import SceneHits
+from tracer.render import render_lines
+from tracer.threads import default_threads
+from worker.replica import SceneReplica
+
+
+@dataclass
+class LinesResult:
+    """Lines [y0, y1) of ``frame`` rendered at scene ``version`` by one tracer."""
+
+    tracer: str
+    frame: int
+    version: int
+    y0: int
+    y1: int
+    rgb: np.ndarray
+    """float32 (y1 - y0, W, 3), linear radiance."""
+    cost: np.ndarray
+    """int64 (y1 - y0,): work per line (BVH node visits plus triangle tests)."""
+    seconds: float
+    """Rendering (including a test-only ``delay``), not applying commits."""
+    apply_seconds: float
+    """Applying the commit buffer or snapshot that came with the call (BVH refit/rebuild)."""
+    pid: int
+    node: str
+    incarnation: str
+    """Changes when Ray restarts the actor (a new process with an empty replica)."""
+
+
+@dataclass(frozen=True)
+class OutOfSync:
+    """The tracer could not reach ``version``: it holds ``have`` (None: no scene at all)."""
+
+    tracer: str
+    frame: int
+    version: int
+    have: int | None
+    reason: str
+    incarnation: str
+
+
+@dataclass(frozen=True)
+class TracerInfo:
+    id: str
+    node: str
+    pid: int
+    incarnation: str
+    cpus: float
+    threads: int
+    version: int | None
+    versions: tuple[int, ...]
+    cache_dir: str
+    """numba's kernel cache directory in this process (shared by every tracer of a machine)."""
+
+
+def _node_id() -> str:
+    """The Ray node this process runs on, or the host name outside Ray."""
+    try:
+        import ray
+
+        if ray.is_initialized():
+            return ray.get_runtime_context().get_node_id()
+    except Exception:  # pragma: no cover - Ray missing or not in a worker
+        pass
+    return os.uname().nodename
+
+
+class Tracer:
+    """One tracer: a scene replica and a renderer of line ranges. Not thread-safe; a Ray actor
+    runs one call at a time, in submission order.
+
+    ``cpus`` is what the actor reserved; it renders with ``max(1, floor(cpus))`` threads.
+    ``delay`` is a test-only option: seconds to sleep at the start of every render (a slow or
+    stalled tracer, or one to kill mid-render); it counts as render time.
+    """
+
+    def __init__(self, tracer_id: str, cpus: float | None = None, delay: float = 0.0):
+        self.id = tracer_id
+        self.cpus = float(cpus) if cpus else float(default_threads())
+        self.threads = max(1, int(self.cpus))
+        self.delay = float(delay)
+        self.replica: SceneReplica | None = None
+        self.incarnation = uuid.uuid4().hex[:12]
+        self.pid = os.getpid()
+        self.node = _node_id()
+
+    # Scene synchronisation -------------------------------------------------------------------
+
+    def sync_snapshot(self, blob: bytes) -> int:
+        """Start over from an encoded snapshot (``tracer.commit_codec.encode_state``); returns
+        the version now held."""
+        if self.replica is None:
+            self.replica = SceneReplica(blob)
+        else:
+            self.replica.reset(blob)
+        return self.replica.version
+
+    def version(self) -> int | None:
+        """The newest version held (None before the first snapshot)."""
+        return None if self.replica is None else self.replica.version
+
+    def _reach(self, version: int, commits: list[bytes], snapshot: bytes | None) -> str | None:
+        """Bring the replica to hold ``version``; None on success, else why not."""
+        replica = self.replica
+        if snapshot is not None and (replica is None or version not in replica.versions):
+            self.sync_snapshot(snapshot)
+            replica = self.replica
+        if replica is None:
+            return "no scene yet (new or restarted tracer)"
+        if version in replica.versions:
+            return None
+        try:
+            replica.apply(commits)
+        except SceneError as error:  # a gap (CommitGap) or a commit that does not apply here
+            return str(error).splitlines()[0]
+        if version not in replica.versions:
+            return f"holds versions {replica.versions}, not {version}"
+        return None
+
+    # Rendering -------------------------------------------------------------------------------
+
+    def render(
+        self,
+        frame: int,
+        version: int,
+        commits: list[bytes],
+        camera: fmt.Camera | None,
+        settings: fmt.RenderSettings | None,
+        y0: int,
+        y1: int,
+        sample_start: int = 0,
+        snapshot: bytes | None = None,
+    ) -> "LinesResult | OutOfSync":
+        """Render lines [y0, y1) of ``frame`` exactly at scene ``version``.
+
+        First applies ``commits`` (encoded, in version order; ones already applied are
+        skipped), or starts from ``snapshot`` when given and needed. ``camera`` and ``settings``
+        default to the scene's at ``version``.
+        """
+        start = time.perf_counter()
+        problem = self._reach(version, commits, snapshot)
+        applied = time.perf_counter()
+        if problem is not None:
+            return OutOfSync(self.id, frame, version, self.version(), problem, self.incarnation)
+        scene = self.replica.at(version)
+        if self.delay > 0.0:
+            time.sleep(self.delay)
+        lines = render_lines(
+            scene, y0, y1, camera, settings, frame, sample_start, threads=self.threads
+        )
+        return LinesResult(
+            tracer=self.id,
+            frame=frame,
+            version=version,
+            y0=y0,
+            y1=y1,
+            rgb=lines.rgb,
+            cost=lines.cost,
+            seconds=time.perf_counter() - applied,
+            apply_seconds=applied - start,
+            pid=self.pid,
+            node=self.node,
+            incarnation=self.incarnation,
+        )
+
+    def warm_up(self) -> dict:
+        """Render one pixel of the held scene at 1 spp, so the render kernel is loaded (from
+        numba's on-disk cache when another process compiled it) before the first frame.
+        Returns the seconds taken, numba's cache hits and misses for the kernel, the cache
+        directory, and this process's pid and node."""
+        from tracer.integrator import render_pixels
+
+        if self.replica is None:
+            raise SceneError("warm_up needs a scene: send a snapshot first")
+        scene = self.replica.current
+        start = time.perf_counter()
+        tiny = fmt.override(scene.camera, width=1, height=1)
+        render_lines(scene, 0, 1, tiny, fmt.override(scene.render, spp=1), threads=1)
+        stats = render_pixels.stats
+        return {
+            "seconds": time.perf_counter() - start,
+            "cache_hits": sum(stats.cache_hits.values()),
+            "cache_misses": sum(stats.cache_misses.values()),
+            "cache_dir": os.environ.get("NUMBA_CACHE_DIR", ""),
+            "pid": self.pid,
+            "node": self.node,
+        }
+
+    def query(
+        self,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        version: int | None = None,
+        t_max: float | None = None,
+    ) -> SceneHits:
+        """Single or batched ray queries (Bikker 7.3.6) on a held version (default newest)."""
+        if self.replica is None:
+            raise SceneError("query needs a scene: send a snapshot first")
+        return self.replica.query(origins, directions, version, t_max)
+
+    # Introspection and test hooks ------------------------------------------------------------
+
+    def info(self) -> TracerInfo:
+        replica = self.replica
+        return TracerInfo(
+            id=self.id,
+            node=self.node,
+            pid=self.pid,
+            incarnation=self.incarnation,
+            cpus=self.cpus,
+            threads=self.threads,
+            version=None if replica is None else replica.version,
+            versions=() if replica is None else tuple(replica.versions),
+            cache_dir=os.environ.get("NUMBA_CACHE_DIR", str(numba_cache.cache_base())),
+        )
+
+    def set_delay(self, seconds: float) -> None:
+        """Test-only: sleep ``seconds`` at the start of every later render."""
+        self.delay = float(seconds)
+
+
+_REMOTE = None
+
+
+def remote_tracer(cpus: float, **options):
+    """The Ray actor class of :class:`Tracer` with its options: ``num_cpus=cpus``, restarted
+    without limit when its process dies (``max_restarts=-1``), calls never retried by Ray
+    (``max_task_retries=0``: the coordinator reassigns a lost range itself). ``options``
+    (e.g. ``scheduling_strategy``) override or extend these. Create an actor with
+    ``remote_tracer(c).remote(tracer_id, c)``."""
+    import ray
+
+    global _REMOTE
+    if _REMOTE is None:
+        _REMOTE = ray.remote(Tracer)
+    settings = {"num_cpus": cpus, "max_restarts": -1, "max_task_retries": 0, **options}
+    return _REMOTE.options(**settings)
