@@ -1,0 +1,246 @@
+"""Interactive rendering (Bikker 7.3.5 and 7.3.7): a converging image and a held frame rate.
+
+**Converging.** Every frame renders fresh samples and is blended into the displayed image:
+``C = C_prev (1 - f) + C_new f``. With a still camera and an unchanging scene, ``f = 1/n`` for
+the n-th frame since the last reset, so the image is the exact running mean of all its frames
+and converges without limit. Camera motion raises ``f``: a move of ``m`` (the view's shift as a
+fraction of the field of view, see :func:`camera_motion`) gives ``f >= m / full_motion``, and a
+move of ``full_motion`` or more starts over (``f = 1``). Scene commits change what is visible
+without the camera knowing: after one, ``f`` stays at least ``min_blend`` until ``1/min_blend``
+frames have passed, so moving objects leave no long ghosts (Bikker's floor), after which
+convergence continues without the floor.
+
+**Scaling the workload.** Frame time is nearly linear in samples per pixel (7.3.7), so after
+every frame the spp for the next is ``spp * target / measured`` (smoothed, clamped to
+``[1, max_spp]``). Below 1 spp the resolution drops in halves (down to 1/4 of each side);
+above, it comes back first. A lower-resolution frame is upscaled (nearest) to the camera's size,
+so the displayed image keeps its size; changing the resolution restarts convergence.
+"""
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from cluster.coordinator import Coordinator
+from cluster.scene_graph import SceneGraph
+from tracer import scene_format as fmt
+
+RESOLUTION_SCALES = (1.0, 0.5, 0.25)
+"""Fractions of the camera's width and height a session may render at, best first."""
+
+
+def camera_motion(a: fmt.Camera, b: fmt.Camera) -> float:
+    """How far the view moved from ``a`` to ``b``, in fields of view: the angle between the
+    view directions plus the position change seen from the target distance, over the vertical
+    field of view. 0 for the same view."""
+    pa, pb = np.asarray(a.position, float), np.asarray(b.position, float)
+    da, db = np.asarray(a.look_at, float) - pa, np.asarray(b.look_at, float) - pb
+    turn = math.atan2(float(np.linalg.norm(np.cross(da, db))), float(np.dot(da, db)))
+    shift = float(np.linalg.norm(pb - pa)) / max(float(np.linalg.norm(da)), 1e-300)
+    zoom = abs(math.radians(b.vfov_deg) - math.radians(a.vfov_deg))
+    size = (b.width, b.height) != (a.width, a.height)
+    return math.inf if size else (turn + shift + zoom) / math.radians(a.vfov_deg)
+
+
+class Convergence:
+    """The blend factor of each frame (module docstring)."""
+
+    def __init__(self, min_blend: float = 0.1, full_motion: float = 0.05):
+        if not 0.0 < min_blend <= 1.0:
+            raise ValueError("min_blend must be in (0, 1]")
+        if not full_motion > 0.0:
+            raise ValueError("full_motion must be positive")
+        self.min_blend = min_blend
+        self.full_motion = full_motion
+        self.frames = 0
+        """Frames blended since the last reset."""
+        self.floor_frames = 0
+        """Frames left during which ``min_blend`` bounds f from below (after a scene change)."""
+
+    def reset(self) -> None:
+        self.frames = 0
+
+    def next_blend(self, motion: float = 0.0, scene_changed: bool = False) -> float:
+        """The f for the next frame, given the camera's motion since the last frame."""
+        if motion >= self.full_motion:
+            self.frames = 0
+        elif motion > 0.0:
+            # Keep at most as much history as the motion allows: f >= motion / full_motion.
+            self.frames = min(self.frames, max(0, math.floor(self.full_motion / motion) - 1))
+        if scene_changed:
+            self.floor_frames = math.ceil(1.0 / self.min_blend)
+        self.frames += 1
+        blend = 1.0 / self.frames
+        if self.floor_frames > 0:
+            self.floor_frames -= 1
+            blend = max(blend, self.min_blend)
+            self.frames = min(self.frames, math.ceil(1.0 / blend))
+        return blend
+
+
+class WorkloadScaler:
+    """Samples per pixel and resolution that hold a target frame time (module docstring)."""
+
+    def __init__(
+        self, target_seconds: float, spp: int = 1, max_spp: int = 256, smoothing: float = 0.5
+    ):
+        if not target_seconds > 0.0:
+            raise ValueError("the target frame time must be positive")
+        self.target = target_seconds
+        self.max_spp = max_spp
+        self.smoothing = smoothing
+        self.spp = max(1, min(spp, max_spp))
+        self.scale_index = 0
+        self._rate = float(self.spp)  # continuous spp the controller steers
+
+    @property
+    def scale(self) -> float:
+        return RESOLUTION_SCALES[self.scale_index]
+
+    def update(self, seconds: float) -> None:
+        """Learn from a frame that took ``seconds`` at the current spp and scale."""
+        if not seconds > 0.0:
+            return
+        wanted = self._rate * self.target / seconds
+        self._rate = (1.0 - self.smoothing) * self._rate + self.smoothing * wanted
+        if self._rate < 0.75 and self.scale_index < len(RESOLUTION_SCALES) - 1:
+            self.scale_index += 1  # a quarter of the pixels: about 4x the samples per pixel
+            self._rate *= 4.0
+        elif self._rate > 6.0 and self.scale_index > 0:
+            self.scale_index -= 1
+            self._rate /= 4.0
+        self._rate = min(max(self._rate, 1.0), float(self.max_spp))
+        self.spp = max(1, min(self.max_spp, round(self._rate)))
+
+
+@dataclass
+class SessionFrame:
+    index: int
+    version: int
+    image: np.ndarray
+    """float32 (H, W, 3) linear radiance at the camera's full size: the converged image."""
+    spp: int
+    width: int
+    height: int
+    """The resolution this frame was rendered at (the image is upscaled to the camera's)."""
+    blend: float
+    seconds: float
+    samples_accumulated: int
+    """Effective samples per pixel behind the displayed image, ``spp / blend`` (exact for a
+    running mean: n frames of spp samples)."""
+
+
+class InteractiveSession:
+    """A converging, rate-held view of a scene. ``render_next`` runs in the caller's thread
+    (the one that owns the coordinator); ``set_camera`` and ``stats`` may be called from any."""
+
+    def __init__(
+        self,
+        coordinator: Coordinator,
+        graph: SceneGraph,
+        target_fps: float = 10.0,
+        min_blend: float = 0.1,
+        max_spp: int = 256,
+    ):
+        if not target_fps > 0.0:
+            raise ValueError("target_fps must be positive")
+        self.coordinator = coordinator
+        self.graph = graph
+        self._lock = threading.Lock()
+        self._camera = graph.state.camera
+        self._rendered_camera: fmt.Camera | None = None
+        self._version: int | None = None
+        self._convergence = Convergence(min_blend)
+        self._scaler = WorkloadScaler(1.0 / target_fps, max_spp=max_spp)
+        self._image: np.ndarray | None = None
+        self._index = 0
+        self._fps = 0.0
+        self._last: SessionFrame | None = None
+        self.closed = False
+
+    def set_camera(self, camera: fmt.Camera) -> None:
+        """The view for the next frame; convergence restarts in proportion to the motion."""
+        with self._lock:
+            self._camera = camera
+
+    @property
+    def camera(self) -> fmt.Camera:
+        with self._lock:
+            return self._camera
+
+    def render_next(self) -> SessionFrame:
+        """Render one frame, blend it in and return the displayed image."""
+        if self.closed:
+            raise RuntimeError("the session is closed")
+        camera = self.camera
+        scale = self._scaler.scale
+        spp = self._scaler.spp
+        width = max(1, round(camera.width * scale))
+        height = max(1, round(camera.height * scale))
+        small = camera.model_copy(update={"width": width, "height": height})
+        settings = self.graph.state.render.model_copy(update={"spp": spp})
+        motion = (
+            0.0 if self._rendered_camera is None else camera_motion(self._rendered_camera, small)
+        )
+        version = self.graph.version
+        scene_changed = self._version is not None and version != self._version
+        start = time.perf_counter()
+        frame = self.coordinator.render_frame(frame=self._index, camera=small, settings=settings)
+        seconds = time.perf_counter() - start
+        full = _upscale(frame.rgb, camera.height, camera.width)
+        if self._image is None or motion == math.inf:
+            self._convergence.reset()
+        blend = self._convergence.next_blend(motion, scene_changed)
+        if blend >= 1.0 or self._image is None:
+            self._image = full.copy()
+        else:
+            self._image *= np.float32(1.0 - blend)
+            self._image += np.float32(blend) * full
+        self._rendered_camera = small
+        self._version = frame.version
+        self._scaler.update(seconds)
+        self._fps = 1.0 / seconds if self._fps == 0.0 else 0.8 * self._fps + 0.2 / seconds
+        result = SessionFrame(
+            index=self._index,
+            version=frame.version,
+            image=self._image.copy(),
+            spp=spp,
+            width=width,
+            height=height,
+            blend=blend,
+            seconds=seconds,
+            samples_accumulated=round(spp / blend),
+        )
+        self._index += 1
+        self._last = result
+        return result
+
+    def stats(self) -> dict:
+        """fps (smoothed), spp and resolution scale of the next frame, the last blend factor,
+        frames rendered."""
+        last = self._last
+        return {
+            "fps": self._fps,
+            "spp": self._scaler.spp,
+            "scale": self._scaler.scale,
+            "blend": None if last is None else last.blend,
+            "frames": self._index,
+            "samples_accumulated": 0 if last is None else last.samples_accumulated,
+        }
+
+    def close(self) -> None:
+        self.closed = True
+        self._image = None
+
+
+def _upscale(image: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Nearest-neighbour resize of ``image`` (h, w, 3) to (height, width, 3)."""
+    h, w = image.shape[:2]
+    if (h, w) == (height, width):
+        return image
+    rows = np.minimum((np.arange(height) * h) // height, h - 1)
+    cols = np.minimum((np.arange(width) * w) // width, w - 1)
+    return image[rows][:, cols]
