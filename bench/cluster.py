@@ -1,0 +1,226 @@
+"""The cluster on this machine: scaling, coordination overhead, idle time per balancer with
+real tracers (Bikker's Table 16), and recovery from a killed tracer.
+
+1. **Scaling**: the Cornell box at 512x512, 16 spp, rendered by three set-ups that coexist on
+   one embedded Ray and take turns, round by round: one tracer of one CPU, two tracers of one
+   CPU each, one tracer using both CPUs through its threads. Targets: two tracers >= 1.8x one,
+   and within 10% of one tracer with two threads.
+2. **Overhead**: the same at 256x256: wall time minus the slowest tracer's busy time
+   (scheduling, transfer, assembly), as a share of the frame. Target <= 5%.
+3. **Idle time, real tracers**: 128 frames of an orbiting camera around the uneven scene of
+   ``record_cost_traces`` (busts below the horizon, sky above), slow and fast orbit, two tracers
+   of one CPU each, every balancer; mean idle % (Table 16's measure) over the frames.
+4. **Recovery**: a tracer killed in the middle of a frame; time from the kill to the frame's
+   completion, against the same frame without a failure.
+"""
+
+import argparse
+import os
+import signal
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # for `common`
+
+from common import (
+    REPO_ROOT,
+    fmt_float,
+    machine_info,
+    note,
+    print_machine,
+    print_table,
+    styled_verdict,
+    verdict,
+    write_results,
+)
+from record_cost_traces import ORBITS, load_orbit_scene, orbit_camera
+
+from cluster.balance import BALANCERS
+from cluster.connect import connect, disconnect
+from cluster.coordinator import Coordinator
+from cluster.scene_graph import SceneGraph
+from tracer.loader import load_scene
+
+CORNELL = REPO_ROOT / "scenes" / "cornell-box" / "scene.json"
+SETUPS = {
+    "1 tracer x 1 cpu": (1, 1.0),
+    "2 tracers x 1 cpu": (2, 1.0),
+    "1 tracer x 2 cpus": (1, 2.0),
+}
+
+
+def scaling(size: int, spp: int, repeats: int) -> dict:
+    """Frame seconds and overhead of each set-up, interleaved round by round."""
+    state = load_scene(CORNELL)
+    camera = state.camera.model_copy(update={"width": size, "height": size})
+    settings = state.render.model_copy(update={"spp": spp})
+    coordinators = {
+        name: Coordinator(SceneGraph(state), tracers=n, cpus_per_tracer=cpus, balancer="none")
+        for name, (n, cpus) in SETUPS.items()
+    }
+    walls = {name: [] for name in SETUPS}
+    overheads = {name: [] for name in SETUPS}
+    images = {}
+    try:
+        for c in coordinators.values():  # warm-up: kernels loaded, first snapshot compiled
+            c.render_frame(camera=camera, settings=settings)
+        for _ in range(repeats):
+            for name, c in coordinators.items():
+                frame = c.render_frame(camera=camera, settings=settings)
+                walls[name].append(frame.wall_seconds)
+                overheads[name].append(frame.overhead_seconds / frame.wall_seconds)
+                images[name] = frame.rgb
+    finally:
+        for c in coordinators.values():
+            c.close()
+    first = images["1 tracer x 1 cpu"]
+    identical = all((image == first).all() for image in images.values())
+    return {
+        "size": size,
+        "spp": spp,
+        "wall_seconds": walls,
+        "median_seconds": {k: statistics.median(v) for k, v in walls.items()},
+        "median_overhead": {k: statistics.median(v) for k, v in overheads.items()},
+        "bit_identical": identical,
+    }
+
+
+def idle_real(frames: int, balancers: list[str], width: int, height: int) -> dict:
+    """Mean idle % per orbit and balancer with two one-CPU tracers."""
+    state, _ = load_orbit_scene()
+    settings = state.render.model_copy(update={"spp": 1})
+    results: dict[str, dict[str, float]] = {}
+    for orbit in ("slow", "fast"):
+        degrees = ORBITS[orbit][0]
+        cameras = [orbit_camera(degrees * k / frames, width, height) for k in range(frames)]
+        results[orbit] = {}
+        for name in balancers:
+            with Coordinator(SceneGraph(state), tracers=2, cpus_per_tracer=1.0, balancer=name) as c:
+                c.render_frame(camera=cameras[0], settings=settings)  # warm-up
+                idle = [
+                    c.render_frame(frame=k, camera=cam, settings=settings).idle_percent
+                    for k, cam in enumerate(cameras)
+                ]
+            results[orbit][name] = statistics.fmean(idle)
+            note(f"{orbit} orbit, {name}: {results[orbit][name]:.2f}% idle")
+    return results
+
+
+def recovery(size: int, spp: int) -> dict:
+    """Seconds from a SIGKILL of one of two tracers mid-frame to the frame's completion."""
+    state = load_scene(CORNELL)
+    camera = state.camera.model_copy(update={"width": size, "height": size})
+    settings = state.render.model_copy(update={"spp": spp})
+    with Coordinator(
+        SceneGraph(state), tracers=2, cpus_per_tracer=1.0, balancer="none", straggler_floor=60.0
+    ) as c:
+        c.render_frame(camera=camera, settings=settings)
+        clean = c.render_frame(frame=1, camera=camera, settings=settings)
+        victim = c.tracers()[1]
+        killed_at = {}
+
+        def kill() -> None:
+            time.sleep(clean.wall_seconds * 0.4)
+            killed_at["t"] = time.perf_counter()
+            os.kill(victim["pid"], signal.SIGKILL)
+
+        killer = threading.Thread(target=kill)
+        killer.start()
+        failed = c.render_frame(frame=1, camera=camera, settings=settings)
+        done = time.perf_counter()
+        killer.join()
+        identical = bool((failed.rgb == clean.rgb).all())
+    return {
+        "clean_seconds": clean.wall_seconds,
+        "with_kill_seconds": failed.wall_seconds,
+        "kill_to_done_seconds": done - killed_at["t"],
+        "failures": failed.failures,
+        "bit_identical": identical,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], epilog="Quick check: --quick"
+    )
+    parser.add_argument("--size", type=int, default=512, help="scaling image side (512)")
+    parser.add_argument("--spp", type=int, default=16, help="scaling samples per pixel (16)")
+    parser.add_argument("--overhead-size", type=int, default=256, help="overhead image side")
+    parser.add_argument("--repeats", type=int, default=5, help="interleaved rounds (5)")
+    parser.add_argument("--frames", type=int, default=128, help="orbit frames (128)")
+    parser.add_argument("--orbit-size", type=int, nargs=2, default=[128, 96], metavar=("W", "H"))
+    parser.add_argument("--balancers", nargs="+", default=list(BALANCERS), choices=list(BALANCERS))
+    parser.add_argument("--skip", nargs="*", default=[], choices=["scaling", "idle", "recovery"])
+    parser.add_argument("--quick", action="store_true", help="small sizes, few frames")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.size, args.spp, args.overhead_size, args.repeats, args.frames = 128, 4, 64, 2, 8
+
+    info = machine_info()
+    print_machine(info)
+    # Room for every set-up's tracers at once (they take turns; only one renders at a time).
+    connect(num_cpus=int(sum(n * cpus for n, cpus in SETUPS.values())))
+    payload: dict = {"options": vars(args)}
+    try:
+        if "scaling" not in args.skip:
+            big = scaling(args.size, args.spp, args.repeats)
+            small = scaling(args.overhead_size, args.spp, args.repeats)
+            payload["scaling"], payload["overhead"] = big, small
+            one = big["median_seconds"]["1 tracer x 1 cpu"]
+            two = big["median_seconds"]["2 tracers x 1 cpu"]
+            threads = big["median_seconds"]["1 tracer x 2 cpus"]
+            print_table(
+                f"Scaling: Cornell box {args.size}x{args.size}, {args.spp} spp "
+                f"(median of {args.repeats}, interleaved)",
+                ["set-up", "seconds", "speed-up", f"overhead at {args.overhead_size}²"],
+                [
+                    [name, fmt_float(s, 3), fmt_float(one / s),
+                     f"{100 * small['median_overhead'][name]:.1f}%"]
+                    for name, s in big["median_seconds"].items()
+                ],
+            )  # fmt: skip
+            overhead = max(small["median_overhead"].values())
+            print_table(
+                "Targets",
+                ["target", "measured", "verdict"],
+                [
+                    ["2 tracers >= 1.8x 1 tracer", fmt_float(one / two),
+                     styled_verdict(verdict(one / two, 1.8))],
+                    ["2 tracers within 10% of 1 tracer x 2 threads", fmt_float(two / threads),
+                     styled_verdict(verdict(two / threads, 1.10, at_most=True))],
+                    [f"overhead <= 5% at {args.overhead_size}²", f"{100 * overhead:.1f}%",
+                     styled_verdict(verdict(overhead, 0.05, at_most=True))],
+                    ["frames bit-identical across set-ups", str(big["bit_identical"]),
+                     styled_verdict("PASS" if big["bit_identical"] else "MISS")],
+                ],
+            )  # fmt: skip
+        if "idle" not in args.skip:
+            width, height = args.orbit_size
+            idle = idle_real(args.frames, args.balancers, width, height)
+            payload["idle_real"] = idle
+            print_table(
+                f"Idle % with 2 real tracers (1 CPU each), {args.frames} frames, {width}x{height}",
+                ["balancer", "slow orbit", "fast orbit"],
+                [[b, fmt_float(idle["slow"][b]), fmt_float(idle["fast"][b])]
+                 for b in args.balancers],
+            )  # fmt: skip
+        if "recovery" not in args.skip:
+            rec = recovery(args.overhead_size, args.spp * 4)
+            payload["recovery"] = rec
+            print_table(
+                "Recovery: one of two tracers SIGKILLed 40% into a frame",
+                ["clean frame s", "frame with kill s", "kill -> frame done s", "bit-identical"],
+                [[fmt_float(rec["clean_seconds"], 3), fmt_float(rec["with_kill_seconds"], 3),
+                  fmt_float(rec["kill_to_done_seconds"], 3), str(rec["bit_identical"])]],
+            )  # fmt: skip
+    finally:
+        disconnect()
+    write_results("cluster", payload, info)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
