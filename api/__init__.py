@@ -1,1 +1,1 @@
-"""placeholder"""
+"""tilerender's HTTP service: scenes, jobs, interactive sessions, the cluster (docs/api.md)."""

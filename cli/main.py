@@ -4,7 +4,7 @@ Every failure a user can cause (a bad scene, a bad option, an unwritable output,
 that cannot be reached) ends with one line on stderr and exit code 2; nothing is written. A
 render the cluster cannot complete (every tracer lost) ends with one line and exit code 1.
 Ctrl-C exits with 130, writing nothing (an animation keeps the frames already written, and the
-message says how many).
+message says how many). ``serve`` runs until Ctrl-C (or SIGTERM), shuts down cleanly and exits 0.
 """
 
 import argparse
@@ -33,6 +33,8 @@ examples:
   tilerender render animated.json -o out.png --frames 0-23   (out_0000.png ...)
   tilerender render scene.json -o x.exr --ray-address 10.0.0.5:6379
   tilerender samples --out renders
+  tilerender serve                       (the service and viewer on 127.0.0.1:8000)
+  tilerender serve --port 9000 --ray-address 10.0.0.5:6379 --token SECRET
   tilerender info scenes/cornell-box/scene.json
   tilerender schema > scene-schema.json"""
 
@@ -113,6 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
     samples.add_argument("--threads", type=positive_int, help="render threads (default: all)")
     samples.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
+    add_serve_parser(sub)
+
     info = sub.add_parser("info", help="describe a scene: geometry, materials, lights, camera")
     info.add_argument("scene", metavar="SCENE")
 
@@ -122,6 +126,56 @@ def build_parser() -> argparse.ArgumentParser:
         description="Print the JSON Schema of tilerender/1 scene files (docs/scene-schema.json).",
     )
     return parser
+
+
+def port_number(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be 0 to 65535, got {value}")
+    return value
+
+
+def add_serve_parser(sub) -> None:
+    serve = sub.add_parser(
+        "serve",
+        help="run the HTTP service and its web viewer",
+        description="Serve the REST API (/v1, OpenAPI at /docs), the web viewer (/) and "
+        "/healthz, /readyz, /metrics, rendering on an embedded local Ray (or the cluster "
+        "--ray-address names). Prints the viewer's URL. Settings not given here come from "
+        "TILERENDER_* environment variables (docs/api.md).",
+    )
+    serve.add_argument(
+        "--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1)"
+    )
+    serve.add_argument(
+        "--port", type=port_number, default=8000, help="port (default: 8000; 0 = any free port)"
+    )
+    serve.add_argument(
+        "--data-dir",
+        metavar="DIR",
+        help="scenes, jobs and results "
+        "(default: $TILERENDER_DATA_DIR or ~/.local/share/tilerender)",
+    )
+    serve.add_argument("--db", metavar="FILE", help="SQLite database (default: DIR/tilerender.db)")
+    serve.add_argument(
+        "--token",
+        help="require 'Authorization: Bearer TOKEN' on /v1 (default: $TILERENDER_TOKEN, or none)",
+    )
+    serve.add_argument(
+        "--cors-origin", action="append", metavar="ORIGIN", help="allow this origin (repeatable)"
+    )
+    serve.add_argument(
+        "--threads",
+        type=positive_int,
+        help="CPUs (render threads) per tracer (default: all of its node's)",
+    )
+    serve.add_argument(
+        "--log-level", default="warning", choices=["critical", "error", "warning", "info", "debug"]
+    )
+    add_cluster_options(serve, frames=False)
 
 
 def add_render_options(parser: argparse.ArgumentParser) -> None:
@@ -142,7 +196,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
-def add_cluster_options(parser: argparse.ArgumentParser) -> None:
+def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) -> None:
     from cluster.balance import BALANCERS  # light: numpy only
 
     default = "cost-aware" if "cost-aware" in BALANCERS else "none"
@@ -164,11 +218,12 @@ def add_cluster_options(parser: argparse.ArgumentParser) -> None:
         help="join a Ray cluster: host:port of its head, or 'auto' for the one `ray start` "
         "runs on this machine (default: start an embedded local Ray)",
     )
-    parser.add_argument(
-        "--frames",
-        metavar="RANGE",
-        help="animation frames to render: N or FIRST-LAST, inclusive (default: all)",
-    )
+    if frames:
+        parser.add_argument(
+            "--frames",
+            metavar="RANGE",
+            help="animation frames to render: N or FIRST-LAST, inclusive (default: all)",
+        )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -435,3 +435,54 @@ def test_readme_sample_scenes_exist():
     assert REPO_SCENES == ROOT / "scenes"
     names = {p.parent.name for p in sample_scene_files(REPO_SCENES)}
     assert {"cornell-box", "gltf-box", "nefertiti", "studio"} <= names
+
+
+# --- serve ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv,words",
+    [
+        (["--ray-address", "127.0.0.1:1"], ["cannot reach Ray"]),
+        (["--ray-address", "no-port"], ["not a Ray address"]),
+        (["--balancer", "fastest"], ["unknown balancer"]),
+        (["--port", "70000"], ["65535"]),
+        (["--token", "short"], ["token"]),
+        (["--tracers", "0"], ["at least 1"]),
+    ],
+)
+def test_serve_refuses_bad_options(capsys, tmp_path, argv, words):
+    """`serve` checks its options (and that a cluster address answers) before starting
+    anything: one line, exit code 2."""
+    code, _, err = run(capsys, "serve", "--data-dir", tmp_path, *argv)
+    assert_usage_error(code, err, *words)
+
+
+def test_serve_port_in_use(capsys, tmp_path):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        code, _, err = run(capsys, "serve", "--data-dir", tmp_path, "--port", port)
+    assert_usage_error(code, err, "cannot listen")
+
+
+@pytest.mark.skipif(not TILERENDER.exists(), reason="console script not installed")
+def test_serve_prints_the_viewer_url_and_stops_on_ctrl_c(tmp_path):
+    """`serve --port 0` prints the viewer's URL, answers /readyz and the viewer page on it,
+    and exits 0 on SIGINT."""
+    import httpx
+
+    from tests.api.conftest import start_server
+
+    server = start_server(tmp_path / "data", "--tracers", "1", "--threads", "1")
+    try:
+        assert server.url.startswith("http://127.0.0.1:")
+        assert httpx.get(server.url + "/readyz").json()["status"] == "ready"
+        page = httpx.get(server.url + "/")
+        assert page.status_code == 200 and "tilerender" in page.text
+        assert (tmp_path / "data" / "tilerender.db").is_file()
+    finally:
+        assert server.stop() == 0

@@ -1,0 +1,125 @@
+"""Errors as JSON: ``{"error": {"status": 422, "code": "invalid_scene", "message": "..."}}``.
+
+Every failure the service reports has that shape, with a message a person can read; an
+unexpected exception is logged with its traceback and answered with a 500 that says only that
+something went wrong on the server (never the stack trace).
+"""
+
+import logging
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from tracer.errors import SceneError
+
+log = logging.getLogger("tilerender.api")
+
+CODES = {
+    400: "bad_request",
+    401: "unauthorized",
+    403: "forbidden",
+    404: "not_found",
+    405: "method_not_allowed",
+    406: "not_acceptable",
+    409: "conflict",
+    413: "too_large",
+    415: "unsupported_media_type",
+    422: "invalid",
+    429: "too_many",
+    500: "internal",
+    503: "unavailable",
+    504: "timeout",
+}
+
+
+class ApiError(Exception):
+    """An error answered as JSON with ``status``; ``code`` is a short machine-readable word."""
+
+    def __init__(
+        self, status: int, message: str, code: str | None = None, headers: dict | None = None
+    ) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+        self.code = code or CODES.get(status, "error")
+        self.headers = headers
+
+
+def error_body(status: int, message: str, code: str | None = None, **extra) -> dict:
+    return {
+        "error": {
+            "status": status,
+            "code": code or CODES.get(status, "error"),
+            "message": message,
+            **extra,
+        }
+    }
+
+
+def error_response(
+    status: int, message: str, code: str | None = None, headers: dict | None = None, **extra
+) -> JSONResponse:
+    return JSONResponse(error_body(status, message, code, **extra), status, headers=headers)
+
+
+def not_found(what: str, ident: str) -> ApiError:
+    return ApiError(404, f"no {what} {ident!r}", "not_found")
+
+
+def _validation_message(errors: list[dict]) -> str:
+    first = errors[0]
+    loc = [str(p) for p in first.get("loc", ()) if p not in ("body", "query", "path")]
+    where = ".".join(loc) or "request"
+    message = str(first.get("msg", "invalid value")).removeprefix("Value error, ")
+    if first.get("type") == "extra_forbidden":
+        message = "unknown field"
+    more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
+    return f"{where}: {message}{more}"
+
+
+def _jsonable(errors: list[dict]) -> list[dict]:
+    return [
+        {
+            "loc": [str(p) for p in e.get("loc", ())],
+            "msg": str(e.get("msg", "")),
+            "type": e.get("type"),
+        }
+        for e in errors[:20]
+    ]
+
+
+def install(app: FastAPI) -> None:
+    """Register the handlers that turn every exception into the JSON error shape."""
+
+    @app.exception_handler(ApiError)
+    async def _api_error(request: Request, exc: ApiError) -> JSONResponse:
+        return error_response(exc.status, exc.message, exc.code, exc.headers)
+
+    @app.exception_handler(SceneError)
+    async def _scene_error(request: Request, exc: SceneError) -> JSONResponse:
+        return error_response(422, str(exc).splitlines()[0] or "invalid scene", "invalid_scene")
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = list(exc.errors())
+        if not errors:
+            return error_response(422, "invalid request")
+        return error_response(
+            422, _validation_message(errors), "invalid", details=_jsonable(errors)
+        )
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        detail = exc.detail if isinstance(exc.detail, str) else CODES.get(exc.status_code, "error")
+        return error_response(exc.status_code, detail, headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(TimeoutError)
+    async def _timeout(request: Request, exc: TimeoutError) -> JSONResponse:
+        return error_response(504, "the cluster did not answer in time; try again", "timeout")
+
+    @app.exception_handler(Exception)
+    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error in %s %s", request.method, request.url.path)
+        return error_response(500, "internal server error (see the server's log)", "internal")

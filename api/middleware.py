@@ -1,0 +1,133 @@
+"""ASGI middleware: request body limit, request timeout, request metrics.
+
+Pure ASGI (no ``BaseHTTPMiddleware``), so streaming responses pass through untouched.
+"""
+
+import asyncio
+import json
+import time
+
+from starlette.exceptions import HTTPException
+
+from api.errors import error_body
+
+STREAM_SUFFIXES = ("/stream", "/events")
+
+
+async def _send_json(send, status: int, body: dict, headers: list | None = None) -> None:
+    payload = json.dumps(body).encode()
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(payload)).encode()),
+                *(headers or []),
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": payload})
+
+
+class BodyLimit:
+    """Refuse request bodies over ``limit`` bytes with 413: at once when Content-Length says
+    so, else as soon as the bytes received pass it (the upload is not read further)."""
+
+    def __init__(self, app, settings) -> None:
+        self.app = app
+        self.settings = settings
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        limit = self.settings.max_upload_bytes
+        for name, value in scope.get("headers", ()):
+            if name == b"content-length":
+                try:
+                    length = int(value)
+                except ValueError:
+                    return await _send_json(send, 400, error_body(400, "bad Content-Length"))
+                if length > limit:
+                    message = f"the request body is larger than the limit of {limit} bytes"
+                    return await _send_json(send, 413, error_body(413, message, "too_large"))
+        received = 0
+
+        async def counted():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > limit:
+                    raise HTTPException(
+                        413, f"the request body is larger than the limit of {limit} bytes"
+                    )
+            return message
+
+        return await self.app(scope, counted, send)
+
+
+class Timeout:
+    """Answer 504 when a request has not started its response within ``seconds`` (streams
+    start theirs at once, so they are never cut)."""
+
+    def __init__(self, app, seconds: float) -> None:
+        self.app = app
+        self.seconds = seconds
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        started = False
+
+        async def watched_send(message):
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        task = asyncio.ensure_future(self.app(scope, receive, watched_send))
+        done, _ = await asyncio.wait({task}, timeout=self.seconds)
+        if task in done or started:
+            return await task
+        task.cancel()
+        try:
+            await task
+        except (asyncio.CancelledError, Exception):
+            pass
+        if not started:
+            message = f"the request did not complete within {self.seconds:g} s"
+            await _send_json(send, 504, error_body(504, message, "timeout"))
+
+
+class RequestMetrics:
+    """Count requests by method, route template and status; time to the first byte."""
+
+    def __init__(self, app, metrics) -> None:
+        self.app = app
+        self.metrics = metrics
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        start = time.perf_counter()
+        status = 500
+
+        async def timed_send(message):
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+                route = _route(scope)
+                self.metrics.request_seconds.labels(route).observe(time.perf_counter() - start)
+            await send(message)
+
+        try:
+            await self.app(scope, receive, timed_send)
+        finally:
+            self.metrics.requests.labels(scope.get("method", ""), _route(scope), str(status)).inc()
+
+
+def _route(scope) -> str:
+    route = scope.get("route")
+    path = getattr(route, "path", None)
+    return path or "unmatched"

@@ -1,0 +1,300 @@
+"""Request and response shapes of the API (the OpenAPI document is built from these)."""
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from tracer.scene_format import Vec3
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ErrorBody(BaseModel):
+    status: int
+    code: str
+    message: str
+
+
+class ErrorResponse(BaseModel):
+    error: ErrorBody
+
+
+ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorResponse, "description": text}
+    for code, text in {
+        401: "missing bearer token",
+        403: "wrong bearer token",
+        404: "not found",
+        422: "invalid input",
+    }.items()
+}
+
+
+def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
+    texts = {
+        400: "bad request",
+        409: "conflict",
+        413: "too large",
+        415: "unsupported media type",
+        429: "queue or session limit reached",
+        503: "the cluster is not ready",
+        504: "timed out",
+    }
+    extra = {c: {"model": ErrorResponse, "description": texts.get(c, "error")} for c in codes}
+    return {**ERRORS, **extra}
+
+
+# --- Scenes ------------------------------------------------------------------------------------
+
+
+class Bounds(BaseModel):
+    min: list[float]
+    max: list[float]
+
+
+class ScenePublic(BaseModel):
+    id: str
+    name: str
+    source: str = Field(description="json, bundle or mesh")
+    entry: str | None = Field(description="the scene file inside the upload")
+    version: int
+    triangles: int
+    created: float
+
+
+class SceneDetail(ScenePublic):
+    nodes: int
+    meshes: int
+    materials: list[str]
+    bounds: Bounds | None
+    camera: dict
+    render: dict
+    sky: list[float]
+    animation: dict | None
+    effects: dict = Field(description="which ray types and material paths the scene needs")
+    node_list: list[dict]
+
+
+class ScenesPublic(BaseModel):
+    data: list[ScenePublic]
+    count: int
+
+
+class CommitRequest(Strict):
+    ops: list[dict[str, Any]] = Field(
+        min_length=1,
+        description="scene operations (docs/dynamic-scenes.md), applied all or nothing",
+        json_schema_extra={"examples": [[{"op": "set_sky", "radiance": [0.1, 0.1, 0.1]}]]},
+    )
+
+
+class CommitPublic(BaseModel):
+    scene_id: str
+    version: int
+
+
+class QueryRequest(Strict):
+    """A ray (``origin`` and ``direction``) or a pixel of the scene's current camera (``x``,
+    ``y`` in pixels from the top-left corner, ``width`` and ``height`` of the image they refer
+    to: the camera's by default)."""
+
+    origin: Vec3 | None = None
+    direction: Vec3 | None = None
+    x: float | None = Field(default=None, ge=0, le=16384)
+    y: float | None = Field(default=None, ge=0, le=16384)
+    width: int | None = Field(default=None, ge=1, le=16384)
+    height: int | None = Field(default=None, ge=1, le=16384)
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> "QueryRequest":
+        ray = self.origin is not None or self.direction is not None
+        pixel = self.x is not None or self.y is not None
+        if ray == pixel:
+            raise ValueError("give either origin and direction, or x and y")
+        if ray and (self.origin is None or self.direction is None):
+            raise ValueError("a ray needs both origin and direction")
+        if pixel and (self.x is None or self.y is None):
+            raise ValueError("a pixel needs both x and y")
+        if ray and not any(self.direction):
+            raise ValueError("direction must not be zero")
+        return self
+
+
+class QueryHit(BaseModel):
+    hit: bool
+    node: int | None = None
+    node_name: str | None = None
+    triangle: int | None = None
+    distance: float | None = None
+    point: list[float] | None = None
+    normal: list[float] | None = None
+    material: str | None = None
+    origin: list[float]
+    direction: list[float]
+    version: int
+
+
+# --- Jobs --------------------------------------------------------------------------------------
+
+
+class CameraPose(Strict):
+    position: Vec3
+    look_at: Vec3
+    up: Vec3 | None = None
+    vfov_deg: float | None = Field(default=None, gt=0, lt=180)
+
+
+class JobCreate(Strict):
+    """A render job: a still, or an animation (the scene's keyframes, or a camera path),
+    by samples per pixel (``spp``, default the scene's), by ``target_error`` (relative RMS
+    error estimate per frame) or by ``time_budget`` (seconds for the whole job)."""
+
+    scene_id: str = Field(min_length=1, max_length=64)
+    kind: Literal["still", "animation"] = "still"
+    spp: int | None = Field(default=None, ge=1)
+    target_error: float | None = Field(default=None, gt=0, lt=1)
+    time_budget: float | None = Field(default=None, gt=0)
+    max_spp: int | None = Field(default=None, ge=2, description="cap for the progressive modes")
+    width: int | None = Field(default=None, ge=1)
+    height: int | None = Field(default=None, ge=1)
+    seed: int | None = Field(default=None, ge=0, lt=2**63)
+    max_depth: int | None = Field(default=None, ge=1, le=1024)
+    frames: list[int] | None = Field(
+        default=None, description="animation frames (default all of the scene's)"
+    )
+    camera_path: list[CameraPose] | None = Field(
+        default=None, description="an animation along these cameras instead of the keyframes"
+    )
+    camera: CameraPose | None = Field(
+        default=None, description="a still from this view instead of the scene's camera"
+    )
+
+    @model_validator(mode="after")
+    def _check(self) -> "JobCreate":
+        modes = [m for m in (self.target_error, self.time_budget) if m is not None]
+        if len(modes) > 1 or (modes and self.spp is not None):
+            raise ValueError("give at most one of spp, target_error and time_budget")
+        if self.kind == "still" and (self.frames is not None or self.camera_path is not None):
+            raise ValueError("frames and camera_path are for animations (kind: animation)")
+        if self.kind == "animation" and self.camera is not None:
+            raise ValueError("camera is for stills; an animation takes a camera_path")
+        if self.frames is not None and self.camera_path is not None:
+            raise ValueError("give frames or camera_path, not both")
+        if self.frames is not None:
+            if not self.frames:
+                raise ValueError("frames must not be empty")
+            if len(set(self.frames)) != len(self.frames):
+                raise ValueError("frames must not repeat")
+            if min(self.frames) < 0:
+                raise ValueError("frames must be non-negative")
+        if self.camera_path is not None and not self.camera_path:
+            raise ValueError("camera_path must not be empty")
+        return self
+
+
+class Progress(BaseModel):
+    frames_done: int
+    frames_total: int
+    current_frame: int | None = None
+    lines_done: int = 0
+    lines_total: int = 0
+    samples_done: int = 0
+    spp_current_frame: int | None = None
+    error_estimate: float | None = None
+    eta_seconds: float | None = None
+    elapsed_seconds: float | None = None
+
+
+class FramePublic(BaseModel):
+    frame: int
+    position: int
+    spp: int
+    seconds: float
+    error_estimate: float | None
+    urls: dict[str, str]
+
+
+class JobPublic(BaseModel):
+    id: str
+    scene_id: str
+    status: Literal["queued", "running", "done", "failed", "cancelled"]
+    request: dict
+    created: float
+    started: float | None
+    finished: float | None
+    scene_version: int
+    width: int
+    height: int
+    error: str | None
+    resumed: int = Field(description="times the job was resumed after a restart")
+    queue_position: int | None = None
+    progress: Progress
+    frames: list[FramePublic] | None = None
+
+
+class JobsPublic(BaseModel):
+    data: list[JobPublic]
+    count: int
+
+
+# --- Sessions ----------------------------------------------------------------------------------
+
+
+class SessionCreate(Strict):
+    scene_id: str = Field(min_length=1, max_length=64)
+    width: int | None = Field(default=None, ge=8)
+    height: int | None = Field(default=None, ge=8)
+    target_fps: float = Field(default=10.0, gt=0, le=120)
+    min_blend: float = Field(default=0.1, gt=0, le=1)
+    camera: CameraPose | None = None
+
+
+class SessionPublic(BaseModel):
+    id: str
+    scene_id: str
+    width: int
+    height: int
+    camera: dict | None
+    created: float
+    stream_url: str
+    frame_url: str
+    stats: dict
+
+
+class SessionsPublic(BaseModel):
+    data: list[SessionPublic]
+    count: int
+
+
+# --- Cluster -----------------------------------------------------------------------------------
+
+
+class TracerPublic(BaseModel):
+    id: str
+    state: str
+    node: str | None
+    pid: int | None
+    cpus: float
+    threads: int
+    failures: int
+    lines_last_frame: int | None
+    lines_per_second: float | None
+    idle_percent: float | None
+
+
+class ClusterPublic(BaseModel):
+    ready: bool
+    error: str | None
+    balancer: str | None
+    balancers: list[str]
+    tracers: list[TracerPublic]
+    last_frame: dict | None
+    queue_length: int
+    sessions: int
+    frames_rendered: int
+
+
+class BalancerUpdate(Strict):
+    name: str = Field(min_length=1, max_length=64)

@@ -1,0 +1,534 @@
+"""Scenes on disk: uploads, safe bundle extraction, the live scene graphs and their commits.
+
+Each scene has a directory ``data_dir/scenes/<id>/``::
+
+    files/            the uploaded files (the scene JSON and the meshes it names, a bundle's
+                      contents, or one mesh file), exactly as uploaded; nothing else
+    state.tls         the scene at a version (tracer.commit_codec.encode_state)
+    commits/N.tlc     each commit after that version (encode_commit), in version order
+
+so a restart rebuilds the scene graph from ``state.tls`` plus the commits, without reading
+the uploaded files again. Every ``COMPACT_EVERY`` commits the state is rewritten and the
+commit files before it removed.
+
+**Version spaces.** One coordinator renders every scene, and its tracers know a scene only by
+version number. So each live :class:`SceneGraph` (a scene's, or a job's private copy) numbers
+its versions from its own offset (``k << 32``): versions of different graphs never collide,
+and a tracer holding another graph's version is sent a snapshot. Users only ever see the
+scene's own version (``internal - offset``).
+
+**Uploads.** Paths inside a bundle or a multipart upload must be relative, stay inside the
+scene's directory, and name regular files: absolute paths, drive letters, ``..``,
+backslashes, NUL bytes, links, devices, duplicates and encrypted entries are refused, and so
+are bundles whose entries unpack to more than ``max_unpacked_bytes``, more than
+``max_bundle_files`` entries, or an entry compressed more than ``max_compression_ratio``
+times (a zip bomb). Bytes are counted while extracting, not taken from the headers. glTF
+buffer and image URIs, OBJ ``mtllib`` and MTL texture references are checked the same way
+before any loader reads them, so a scene can reference only files inside its upload.
+"""
+
+import dataclasses
+import itertools
+import json
+import re
+import secrets
+import shutil
+import stat
+import threading
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from api.errors import ApiError
+from api.settings import Settings
+from api.store import Store
+from cluster.scene_graph import SceneGraph
+from tracer.commit_codec import decode_commit, decode_state, encode_commit, encode_state
+from tracer.errors import SceneError
+from tracer.loader import MESH_SUFFIXES, load_scene
+from tracer.scene_model import SceneState
+from tracer.scene_ops import Commit
+
+VERSION_SPACE = 1 << 32
+COMPACT_EVERY = 256
+GROWING_OPS = ("add_mesh", "replace_mesh", "add_node")
+"""Operations that can add triangles: a commit holding one is checked against the limit."""
+CHUNK = 1 << 16
+MAX_NAME = 255
+MAX_PATH = 1024
+
+_offsets = itertools.count(1)
+_DRIVE = re.compile(r"^[A-Za-z]:")
+
+
+class VersionedGraph:
+    """A :class:`SceneGraph` numbering its versions from an offset of its own (see the module
+    docstring); ``version`` and ``user_state`` are in the user's numbering."""
+
+    def __init__(self, state: SceneState) -> None:
+        self.offset = next(_offsets) * VERSION_SPACE
+        self.graph = SceneGraph(dataclasses.replace(state, version=self.offset + state.version))
+
+    @property
+    def version(self) -> int:
+        return self.graph.version - self.offset
+
+    def user_version(self, internal: int) -> int:
+        return internal - self.offset
+
+    def user_state(self) -> SceneState:
+        state = self.graph.state
+        return dataclasses.replace(state, version=state.version - self.offset)
+
+
+@dataclass(eq=False)
+class SceneEntry:
+    """A scene the service holds: its record, directory and live graph."""
+
+    id: str
+    name: str
+    source: str
+    directory: Path
+    versioned: VersionedGraph
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    summary_cache: dict = field(default_factory=dict)
+    commits_since_compaction: int = 0
+
+    @property
+    def graph(self) -> SceneGraph:
+        return self.versioned.graph
+
+    @property
+    def version(self) -> int:
+        return self.versioned.version
+
+
+def new_id(prefix: str) -> str:
+    return prefix + secrets.token_hex(6)
+
+
+# --- Paths inside uploads ------------------------------------------------------------------
+
+
+def safe_relative(name: str, what: str = "file") -> PurePosixPath:
+    """``name`` as a relative path that stays inside its directory; ApiError 422 otherwise."""
+    if not isinstance(name, str) or not name.strip():
+        raise ApiError(422, f"{what}: an empty file name", "unsafe_path")
+    if "\x00" in name or any(ord(c) < 32 for c in name):
+        raise ApiError(422, f"{what} {name!r}: control characters in a file name", "unsafe_path")
+    if "\\" in name:
+        raise ApiError(422, f"{what} {name!r}: backslashes are not allowed in paths", "unsafe_path")
+    if name.startswith("/") or _DRIVE.match(name):
+        raise ApiError(422, f"{what} {name!r}: absolute paths are not allowed", "unsafe_path")
+    if len(name) > MAX_PATH:
+        raise ApiError(422, f"{what}: a path longer than {MAX_PATH} characters", "unsafe_path")
+    path = PurePosixPath(name)
+    parts = [p for p in path.parts if p not in ("", ".")]
+    if not parts:
+        raise ApiError(422, f"{what} {name!r}: not a file name", "unsafe_path")
+    if ".." in parts:
+        raise ApiError(422, f"{what} {name!r}: '..' may not appear in paths", "unsafe_path")
+    if any(len(p) > MAX_NAME for p in parts):
+        raise ApiError(422, f"{what} {name!r}: a path component is too long", "unsafe_path")
+    return PurePosixPath(*parts)
+
+
+def _target(root: Path, relative: PurePosixPath) -> Path:
+    target = (root / Path(*relative.parts)).resolve()
+    if not target.is_relative_to(root.resolve()):
+        raise ApiError(422, f"{relative}: leaves the scene's directory", "unsafe_path")
+    return target
+
+
+def extract_bundle(archive: Path, root: Path, settings: Settings) -> list[str]:
+    """Unpack a zip bundle into ``root`` safely (module docstring); returns the file names."""
+    try:
+        bundle = zipfile.ZipFile(archive)
+    except (zipfile.BadZipFile, OSError, ValueError):
+        raise ApiError(422, "the bundle is not a valid zip file", "bad_bundle") from None
+    names: list[str] = []
+    total = 0
+    with bundle:
+        infos = bundle.infolist()
+        if len(infos) > settings.max_bundle_files:
+            raise ApiError(
+                413,
+                f"the bundle has {len(infos)} entries, more than {settings.max_bundle_files}",
+                "bundle_too_large",
+            )
+        declared = sum(i.file_size for i in infos)
+        if declared > settings.max_unpacked_bytes:
+            raise ApiError(
+                413,
+                f"the bundle unpacks to {declared} bytes, more than {settings.max_unpacked_bytes}",
+                "bundle_too_large",
+            )
+        seen: set[str] = set()
+        for info in infos:
+            name = info.filename
+            mode = (info.external_attr >> 16) & 0xFFFF
+            if stat.S_ISLNK(mode):
+                raise ApiError(422, f"bundle entry {name!r}: links are not allowed", "unsafe_path")
+            if stat.S_IFMT(mode) not in (0, stat.S_IFREG, stat.S_IFDIR):
+                raise ApiError(422, f"bundle entry {name!r}: not a regular file", "unsafe_path")
+            if info.flag_bits & 0x1:
+                raise ApiError(
+                    422, f"bundle entry {name!r}: encrypted entries are not supported", "bad_bundle"
+                )
+            relative = safe_relative(name, "bundle entry")
+            key = str(relative).lower()
+            if key in seen:
+                raise ApiError(422, f"bundle entry {name!r}: appears twice", "bad_bundle")
+            seen.add(key)
+            target = _target(root, relative)
+            if info.is_dir():
+                target.mkdir(parents=True, exist_ok=True)
+                continue
+            if info.file_size > CHUNK and info.file_size > settings.max_compression_ratio * max(
+                info.compress_size, 1
+            ):
+                ratio = info.file_size / max(info.compress_size, 1)
+                raise ApiError(
+                    413,
+                    f"bundle entry {name!r} is compressed {ratio:.0f} times (more than "
+                    f"{settings.max_compression_ratio:g}): refused as a zip bomb",
+                    "zip_bomb",
+                )
+            target.parent.mkdir(parents=True, exist_ok=True)
+            written = 0
+            try:
+                with bundle.open(info) as src, open(target, "xb") as dst:
+                    while chunk := src.read(CHUNK):
+                        written += len(chunk)
+                        total += len(chunk)
+                        if written > info.file_size or total > settings.max_unpacked_bytes:
+                            raise ApiError(
+                                413,
+                                f"bundle entry {name!r} unpacks to more than it declares",
+                                "zip_bomb",
+                            )
+                        dst.write(chunk)
+            except FileExistsError:
+                raise ApiError(422, f"bundle entry {name!r}: appears twice", "bad_bundle") from None
+            except (
+                zipfile.BadZipFile,
+                OSError,
+                EOFError,
+                NotImplementedError,
+                RuntimeError,
+            ) as exc:
+                raise ApiError(
+                    422, f"bundle entry {name!r}: cannot be unpacked ({exc})", "bad_bundle"
+                ) from None
+            names.append(str(relative))
+    if not names:
+        raise ApiError(422, "the bundle contains no files", "bad_bundle")
+    return names
+
+
+def _check_reference(root: Path, base: Path, reference: str, where: str) -> None:
+    if reference.startswith("data:"):
+        return
+    from urllib.parse import unquote
+
+    relative = safe_relative(unquote(reference), where)
+    target = _target(root, PurePosixPath(*(base.relative_to(root).parts + relative.parts)))
+    if not target.is_file():
+        raise ApiError(422, f"{where} {reference!r}: no such file in the upload", "missing_file")
+
+
+def check_references(root: Path) -> None:
+    """Refuse glTF, OBJ and MTL files that point outside ``root`` (module docstring)."""
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        suffix = path.suffix.lower()
+        name = str(path.relative_to(root))
+        if suffix == ".gltf":
+            try:
+                doc = json.loads(path.read_text(encoding="utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+                raise ApiError(422, f"{name}: not valid glTF JSON", "invalid_scene") from None
+            if not isinstance(doc, dict):
+                raise ApiError(422, f"{name}: not valid glTF JSON", "invalid_scene")
+            for section in ("buffers", "images"):
+                for item in doc.get(section) or []:
+                    if isinstance(item, dict) and isinstance(item.get("uri"), str):
+                        _check_reference(root, path.parent, item["uri"], f"{name}: {section} uri")
+        elif suffix in (".obj", ".mtl"):
+            with open(path, "rb") as f:
+                for raw in f:
+                    line = raw.decode("utf-8", "replace").strip()
+                    keyword, _, rest = line.partition(" ")
+                    if keyword == "mtllib" or (suffix == ".mtl" and keyword.startswith("map_")):
+                        for ref in rest.split():
+                            if not ref.startswith("-"):
+                                _check_reference(root, path.parent, ref, f"{name}: {keyword}")
+
+
+def find_entry(root: Path, names: list[str]) -> PurePosixPath:
+    """The scene file of a bundle: ``scene.json`` at its top, else its only ``.json`` file,
+    else its only mesh file."""
+    if "scene.json" in names:
+        return PurePosixPath("scene.json")
+    jsons = [n for n in names if n.lower().endswith(".json")]
+    if len(jsons) == 1:
+        return PurePosixPath(jsons[0])
+    if len(jsons) > 1:
+        raise ApiError(
+            422, "the bundle has several .json files and no scene.json at its top", "bad_bundle"
+        )
+    meshes = [n for n in names if PurePosixPath(n).suffix.lower() in MESH_SUFFIXES]
+    if len(meshes) == 1:
+        return PurePosixPath(meshes[0])
+    raise ApiError(
+        422, "the bundle has no scene.json (and not exactly one mesh file)", "bad_bundle"
+    )
+
+
+# --- Summaries -----------------------------------------------------------------------------
+
+
+def count_triangles(state: SceneState) -> int:
+    return sum(state.meshes[n.mesh].triangles for n in state.geometry_nodes())
+
+
+def bounds(state: SceneState) -> tuple[list[float], list[float]] | None:
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for node in state.geometry_nodes():
+        m = state.world_transform(node.id)
+        mesh = state.meshes[node.mesh]
+        # the box of the mesh's vertices, transformed (exact for the 8 corners' hull)
+        vmin, vmax = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+        corners = np.array(
+            [
+                [x, y, z]
+                for x in (vmin[0], vmax[0])
+                for y in (vmin[1], vmax[1])
+                for z in (vmin[2], vmax[2])
+            ]
+        )
+        world = corners @ m[:3, :3].T + m[:3, 3]
+        lo = np.minimum(lo, world.min(axis=0))
+        hi = np.maximum(hi, world.max(axis=0))
+    if not np.isfinite(lo).all():
+        return None
+    return [float(v) for v in lo], [float(v) for v in hi]
+
+
+def effects(state: SceneState) -> dict:
+    """Which ray types and material paths the scene needs, from its content. (A summary of
+    the state; the tracer's own effect plan replaces it when it lands.)"""
+    used = {n.material for n in state.geometry_nodes()}
+    emissive = sorted(
+        m for m in used if m in state.materials and max(state.materials[m].emission) > 0
+    )
+    reflective = any(max(state.materials[m].reflectance) > 0 for m in used if m in state.materials)
+    sky = max(state.sky.radiance) > 0
+    depth = state.render.max_depth
+    return {
+        "emitters_seen": bool(emissive) or sky,
+        "area_lights": emissive,
+        "shadow_rays": bool(emissive) and depth >= 2 and reflective,
+        "sky": sky,
+        "indirect_bounces": max(0, depth - 2) if reflective else 0,
+        "material_types": sorted({state.materials[m].type for m in used if m in state.materials}),
+        "textures": False,
+    }
+
+
+def summary(state: SceneState) -> dict:
+    box = bounds(state)
+    animation = state.animation
+    return {
+        "triangles": count_triangles(state),
+        "nodes": len(state.nodes),
+        "meshes": len(state.meshes),
+        "materials": sorted(state.materials),
+        "bounds": None if box is None else {"min": box[0], "max": box[1]},
+        "camera": state.camera.model_dump(),
+        "render": state.render.model_dump(),
+        "sky": list(state.sky.radiance),
+        "animation": None
+        if animation is None
+        else {
+            "frames": animation.frames,
+            "fps": animation.fps,
+            "animated_nodes": len(animation.nodes),
+            "camera": bool(animation.camera),
+        },
+        "effects": effects(state),
+        "node_list": [
+            {
+                "id": n.id,
+                "name": n.name,
+                "kind": n.kind,
+                "mesh": n.mesh,
+                "material": n.material,
+                "parent": n.parent,
+            }
+            for n in list(state.nodes.values())[:1000]
+        ],
+    }
+
+
+# --- The repository --------------------------------------------------------------------------
+
+
+class SceneRepository:
+    """Scenes on disk and in memory. Methods that read or write files are blocking: call them
+    from a worker thread, never from the event loop."""
+
+    def __init__(self, settings: Settings, store: Store) -> None:
+        self.settings = settings
+        self.store = store
+        self.root = settings.data_dir / "scenes"
+        self.tmp = settings.data_dir / "tmp"
+        self.root.mkdir(parents=True, exist_ok=True)
+        shutil.rmtree(self.tmp, ignore_errors=True)
+        self.tmp.mkdir(parents=True, exist_ok=True)
+        self._entries: dict[str, SceneEntry] = {}
+        self._lock = threading.Lock()
+
+    def staging(self) -> Path:
+        """A fresh directory for an upload in progress (removed by :meth:`discard`)."""
+        path = self.tmp / new_id("u")
+        path.mkdir()
+        return path
+
+    @staticmethod
+    def discard(path: Path) -> None:
+        shutil.rmtree(path, ignore_errors=True)
+
+    def create(self, staged: Path, entry: PurePosixPath, name: str, source: str) -> SceneEntry:
+        """Load the scene ``entry`` names inside ``staged/files`` and keep it under a new id."""
+        files = staged / "files"
+        scene_path = _target(files, entry)
+        if not scene_path.is_file():
+            raise ApiError(422, f"{entry}: no such file in the upload", "missing_file")
+        check_references(files)
+        state = load_scene(scene_path)  # SceneError -> 422
+        triangles = count_triangles(state)
+        if triangles > self.settings.max_triangles:
+            raise ApiError(
+                422,
+                f"the scene has {triangles} triangles, more than the limit of "
+                f"{self.settings.max_triangles}",
+                "too_many_triangles",
+            )
+        scene_id = new_id("s")
+        directory = self.root / scene_id
+        (staged / "commits").mkdir()
+        _write_atomic(staged / "state.tls", encode_state(dataclasses.replace(state, version=0)))
+        staged.rename(directory)
+        self.store.add_scene(scene_id, name, source, str(entry), triangles)
+        entry_obj = SceneEntry(scene_id, name, source, directory, VersionedGraph(state))
+        with self._lock:
+            self._entries[scene_id] = entry_obj
+        return entry_obj
+
+    def get(self, scene_id: str) -> SceneEntry:
+        """The scene (loaded from its state and commits the first time); ApiError 404."""
+        with self._lock:
+            entry = self._entries.get(scene_id)
+        if entry is not None:
+            return entry
+        record = self.store.scene(scene_id) if _plausible_id(scene_id) else None
+        if record is None:
+            raise ApiError(404, f"no scene {scene_id!r}", "not_found")
+        directory = self.root / scene_id
+        try:
+            state = decode_state((directory / "state.tls").read_bytes())
+            for path in sorted((directory / "commits").glob("*.tlc"), key=lambda p: int(p.stem)):
+                commit = decode_commit(path.read_bytes())
+                if commit.version <= state.version:
+                    continue
+                from tracer.scene_ops import apply_commit
+
+                state = apply_commit(state, commit)
+        except (OSError, SceneError, ValueError) as exc:
+            raise ApiError(
+                500, f"scene {scene_id} cannot be restored: {exc}", "corrupt_scene"
+            ) from None
+        entry = SceneEntry(
+            scene_id, record["name"], record["source"], directory, VersionedGraph(state)
+        )
+        with self._lock:
+            return self._entries.setdefault(scene_id, entry)
+
+    def list(self) -> list[dict]:
+        return self.store.scenes()
+
+    def commit(self, entry: SceneEntry, ops: list) -> int:
+        """Apply ``ops`` as one commit (all or nothing), persist it; returns the new version."""
+        if len(ops) > self.settings.max_ops:
+            raise ApiError(
+                422, f"a commit may hold at most {self.settings.max_ops} operations", "too_many_ops"
+            )
+        from tracer.scene_ops import apply_ops, parse_ops
+
+        parsed = parse_ops(ops)  # SceneError -> 422
+        with entry.lock:
+            if any(op.op in GROWING_OPS for op in parsed):  # a dry run for the triangle limit
+                triangles = count_triangles(apply_ops(entry.graph.state, parsed))
+                if triangles > self.settings.max_triangles:
+                    raise ApiError(
+                        422,
+                        f"after this commit the scene would have {triangles} triangles, more "
+                        f"than the limit of {self.settings.max_triangles}",
+                        "too_many_triangles",
+                    )
+            commit = entry.graph.commit(parsed)  # SceneError -> 422, nothing changed
+            version = entry.versioned.user_version(commit.version)
+            _write_atomic(
+                entry.directory / "commits" / f"{version}.tlc",
+                encode_commit(Commit(version, commit.ops)),
+            )
+            entry.commits_since_compaction += 1
+            if entry.commits_since_compaction >= COMPACT_EVERY:
+                self._compact(entry)
+            self.store.set_scene_version(entry.id, version, count_triangles(entry.graph.state))
+            entry.summary_cache.clear()
+        return version
+
+    def _compact(self, entry: SceneEntry) -> None:
+        state = entry.versioned.user_state()
+        _write_atomic(entry.directory / "state.tls", encode_state(state))
+        for path in (entry.directory / "commits").glob("*.tlc"):
+            if int(path.stem) <= state.version:
+                path.unlink(missing_ok=True)
+        entry.commits_since_compaction = 0
+
+    def summary(self, entry: SceneEntry) -> dict:
+        with entry.lock:
+            state = entry.versioned.user_state()
+        cached = entry.summary_cache.get(state.version)
+        if cached is None:
+            cached = summary(state)
+            entry.summary_cache.clear()
+            entry.summary_cache[state.version] = cached
+        return {**cached, "version": state.version}
+
+    def delete(self, scene_id: str) -> None:
+        if not _plausible_id(scene_id) or self.store.scene(scene_id) is None:
+            raise ApiError(404, f"no scene {scene_id!r}", "not_found")
+        with self._lock:
+            self._entries.pop(scene_id, None)
+        self.store.delete_scene(scene_id)
+        target = self.root / scene_id
+        if target.is_dir():
+            trash = self.tmp / f"deleted-{scene_id}"
+            target.rename(trash)
+            shutil.rmtree(trash, ignore_errors=True)
+
+
+def _plausible_id(ident: str) -> bool:
+    return bool(re.fullmatch(r"[a-z][0-9a-f]{12}", ident))
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+    tmp.replace(path)

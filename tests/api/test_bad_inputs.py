@@ -1,0 +1,504 @@
+"""A corpus of bad requests, each answered with the right 4xx and a JSON error whose message
+a person can read (never a stack trace); plus auth, CORS and the body limit."""
+
+import json
+
+import pytest
+from fastapi.testclient import TestClient
+
+from tests.api.conftest import (
+    animated_scene,
+    make_settings,
+    tiny_json,
+    upload_tiny,
+    wait_job,
+    zip_bytes,
+)
+from tests.helpers import tiny_scene
+
+OBJ = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+BIG_ZERO = b"\0" * (4 << 20)
+
+
+def scene_with(**changes) -> bytes:
+    return json.dumps({**tiny_scene(), **changes}).encode()
+
+
+def scene_referencing(path: str) -> bytes:
+    scene = tiny_scene()
+    scene["objects"][1]["shape"] = path
+    return json.dumps(scene).encode()
+
+
+def gltf_with_uri(uri: str) -> bytes:
+    return json.dumps(
+        {
+            "asset": {"version": "2.0"},
+            "buffers": [{"uri": uri, "byteLength": 36}],
+            "meshes": [],
+        }
+    ).encode()
+
+
+def upload(**files):
+    return ("POST", "/v1/scenes", {"files": files})
+
+
+# (name, request, expected status, a word the message contains)
+UPLOADS = [
+    ("no content type", ("POST", "/v1/scenes", {"content": b"x"}), 415, "content type"),
+    (
+        "plain text",
+        ("POST", "/v1/scenes", {"content": b"x", "headers": {"content-type": "text/plain"}}),
+        415,
+        "content type",
+    ),
+    (
+        "empty json body",
+        ("POST", "/v1/scenes", {"content": b"", "headers": {"content-type": "application/json"}}),
+        422,
+        "empty",
+    ),
+    (
+        "multipart without a scene",
+        ("POST", "/v1/scenes", {"data": {"name": "x"}, "files": {"files": ("a.obj", OBJ)}}),
+        422,
+        "exactly one",
+    ),
+    (
+        "scene and mesh",
+        upload(scene=("s.json", tiny_json()), mesh=("a.obj", OBJ)),
+        422,
+        "exactly one",
+    ),
+    (
+        "unknown form field",
+        ("POST", "/v1/scenes", {"files": {"scene": ("s.json", tiny_json()), "extra": ("x", b"1")}}),
+        422,
+        "unknown form field",
+    ),
+    ("scene not json", upload(scene=("s.json", b"{not json")), 422, "JSON"),
+    (
+        "scene with NaN",
+        upload(scene=("s.json", tiny_json().replace(b"45.0", b"NaN"))),
+        422,
+        "non-finite",
+    ),
+    ("scene unknown key", upload(scene=("s.json", scene_with(colour=1))), 422, "unknown key"),
+    (
+        "scene missing mesh file",
+        upload(scene=("s.json", scene_referencing("missing.obj"))),
+        422,
+        "no such file",
+    ),
+    (
+        "scene reference leaves",
+        upload(scene=("s.json", scene_referencing("../etc/passwd"))),
+        422,
+        "leave",
+    ),
+    (
+        "scene absolute reference",
+        upload(scene=("s.json", scene_referencing("/etc/passwd"))),
+        422,
+        "relative",
+    ),
+    ("file named ..", upload(scene=("s.json", tiny_json()), files=("../evil.obj", OBJ)), 422, ".."),
+    (
+        "file absolute name",
+        upload(scene=("s.json", tiny_json()), files=("/tmp/evil.obj", OBJ)),
+        422,
+        "absolute",
+    ),
+    (
+        "file backslash name",
+        upload(scene=("s.json", tiny_json()), files=("..\\evil.obj", OBJ)),
+        422,
+        "backslash",
+    ),
+    ("mesh unknown type", upload(mesh=("notes.txt", b"hello")), 422, "unknown mesh type"),
+    ("mesh garbage obj", upload(mesh=("bad.obj", b"v 1 2\nf 9 9 9\n")), 422, "bad.obj"),
+    ("mesh empty file", upload(mesh=("empty.stl", b"")), 422, "empty.stl"),
+    ("mesh glb garbage", upload(mesh=("x.glb", b"glTF\x02\x00\x00\x00garbage")), 422, "x.glb"),
+    ("gltf buffer outside", upload(mesh=("m.gltf", gltf_with_uri("../../etc/passwd"))), 422, ".."),
+    (
+        "gltf buffer absolute",
+        upload(mesh=("m.gltf", gltf_with_uri("/etc/passwd"))),
+        422,
+        "absolute",
+    ),
+    ("obj mtllib outside", upload(mesh=("m.obj", b"mtllib ../x.mtl\n" + OBJ)), 422, ".."),
+    ("bundle not a zip", upload(bundle=("b.zip", b"PK not really")), 422, "zip"),
+    (
+        "bundle traversal",
+        upload(bundle=("b.zip", zip_bytes({"../scene.json": tiny_json()}))),
+        422,
+        "..",
+    ),
+    (
+        "bundle absolute entry",
+        upload(bundle=("b.zip", zip_bytes({"/scene.json": tiny_json()}))),
+        422,
+        "absolute",
+    ),
+    (
+        "bundle symlink",
+        upload(
+            bundle=("b.zip", zip_bytes({"scene.json": tiny_json()}, links={"m.obj": "/etc/passwd"}))
+        ),
+        422,
+        "link",
+    ),
+    (
+        "bundle zip bomb",
+        upload(bundle=("b.zip", zip_bytes({"scene.json": tiny_json(), "pad.bin": BIG_ZERO}))),
+        413,
+        "zip bomb",
+    ),
+    (
+        "bundle without scene",
+        upload(bundle=("b.zip", zip_bytes({"a.txt": b"1", "b.txt": b"2"}))),
+        422,
+        "no scene.json",
+    ),
+    (
+        "bundle two jsons",
+        upload(bundle=("b.zip", zip_bytes({"a.json": b"{}", "b.json": b"{}"}))),
+        422,
+        "several",
+    ),
+    (
+        "raw zip traversal",
+        (
+            "POST",
+            "/v1/scenes",
+            {
+                "content": zip_bytes({"a/../../x.json": b"{}"}),
+                "headers": {"content-type": "application/zip"},
+            },
+        ),
+        422,
+        "..",
+    ),
+]
+
+OTHERS = [
+    ("unknown scene", ("GET", "/v1/scenes/s000000000000", {}), 404, "no scene"),
+    ("unknown scene id shape", ("GET", "/v1/scenes/..%2Fetc", {}), 404, ""),
+    ("unknown path", ("GET", "/v1/nothing", {}), 404, ""),
+    ("wrong method", ("PUT", "/v1/scenes", {"json": {}}), 405, ""),
+    ("unknown job", ("GET", "/v1/jobs/j000000000000", {}), 404, "no job"),
+    ("cancel unknown job", ("POST", "/v1/jobs/j000000000000/cancel", {}), 404, "no job"),
+    (
+        "job for unknown scene",
+        ("POST", "/v1/jobs", {"json": {"scene_id": "s000000000000"}}),
+        404,
+        "no scene",
+    ),
+    (
+        "job malformed json",
+        ("POST", "/v1/jobs", {"content": b"{", "headers": {"content-type": "application/json"}}),
+        422,
+        "",
+    ),
+    (
+        "job unknown field",
+        ("POST", "/v1/jobs", {"json": {"scene_id": "s1", "colour": 1}}),
+        422,
+        "unknown field",
+    ),
+    ("job spp zero", ("POST", "/v1/jobs", {"json": {"scene_id": "s1", "spp": 0}}), 422, "spp"),
+    (
+        "job two modes",
+        ("POST", "/v1/jobs", {"json": {"scene_id": "s1", "spp": 4, "target_error": 0.1}}),
+        422,
+        "at most one",
+    ),
+    (
+        "job frames on a still",
+        ("POST", "/v1/jobs", {"json": {"scene_id": "s1", "frames": [0]}}),
+        422,
+        "animation",
+    ),
+    (
+        "job negative budget",
+        ("POST", "/v1/jobs", {"json": {"scene_id": "s1", "time_budget": -1}}),
+        422,
+        "time_budget",
+    ),
+    (
+        "session for unknown scene",
+        ("POST", "/v1/sessions", {"json": {"scene_id": "s000000000000"}}),
+        404,
+        "no scene",
+    ),
+    ("unknown session", ("GET", "/v1/sessions/v000000000000", {}), 404, "no session"),
+    (
+        "camera for unknown session",
+        (
+            "PUT",
+            "/v1/sessions/v000000000000/camera",
+            {"json": {"position": [0, 0, 1], "look_at": [0, 0, 0]}},
+        ),
+        404,
+        "no session",
+    ),
+    (
+        "unknown balancer",
+        ("PUT", "/v1/cluster/balancer", {"json": {"name": "fastest"}}),
+        422,
+        "unknown balancer",
+    ),
+    (
+        "query without a ray",
+        ("POST", "/v1/scenes/s000000000000/query", {"json": {}}),
+        422,
+        "either",
+    ),
+]
+
+
+def check(response, status: int, word: str) -> None:
+    assert response.status_code == status, response.text
+    body = response.json()
+    assert set(body) == {"error"}, body
+    error = body["error"]
+    assert error["status"] == status and error["message"] and error["code"]
+    assert "Traceback" not in response.text and 'File "' not in response.text
+    assert word.lower() in error["message"].lower(), error["message"]
+
+
+@pytest.mark.parametrize(
+    "name,request_,status,word", UPLOADS + OTHERS, ids=[c[0] for c in UPLOADS + OTHERS]
+)
+def test_bad_request(client, name, request_, status, word):
+    method, path, kwargs = request_
+    check(client.request(method, path, **kwargs), status, word)
+
+
+def scene_requests(scene_id: str, animated_id: str) -> list:
+    job = {"scene_id": scene_id}
+    return [
+        (
+            "commit unknown op",
+            "POST",
+            f"/v1/scenes/{scene_id}/commits",
+            {"ops": [{"op": "explode"}]},
+            422,
+            "unknown operation",
+        ),
+        ("commit no ops", "POST", f"/v1/scenes/{scene_id}/commits", {"ops": []}, 422, "ops"),
+        (
+            "commit unknown node",
+            "POST",
+            f"/v1/scenes/{scene_id}/commits",
+            {"ops": [{"op": "remove_node", "node": "ghost"}]},
+            422,
+            "ghost",
+        ),
+        (
+            "commit singular transform",
+            "POST",
+            f"/v1/scenes/{scene_id}/commits",
+            {"ops": [{"op": "set_transform", "node": "cube", "transform": {"scale": 0}}]},
+            422,
+            "singular",
+        ),
+        (
+            "commit bad camera",
+            "POST",
+            f"/v1/scenes/{scene_id}/commits",
+            {
+                "ops": [
+                    {"op": "set_camera", "camera": {"position": [0, 0, 0], "look_at": [0, 0, 0]}}
+                ]
+            },
+            422,
+            "look_at",
+        ),
+        ("job spp over limit", "POST", "/v1/jobs", {**job, "spp": 10**6}, 422, "spp"),
+        (
+            "job resolution over limit",
+            "POST",
+            "/v1/jobs",
+            {**job, "width": 20000, "height": 10},
+            422,
+            "width",
+        ),
+        (
+            "job resolution over service limit",
+            "POST",
+            "/v1/jobs",
+            {**job, "width": 8000, "height": 10},
+            422,
+            "resolution",
+        ),
+        (
+            "job animation of a still",
+            "POST",
+            "/v1/jobs",
+            {**job, "kind": "animation"},
+            422,
+            "no animation",
+        ),
+        (
+            "job frames out of range",
+            "POST",
+            "/v1/jobs",
+            {"scene_id": animated_id, "kind": "animation", "frames": [0, 99]},
+            422,
+            "frames",
+        ),
+        (
+            "job too many frames",
+            "POST",
+            "/v1/jobs",
+            {
+                **job,
+                "kind": "animation",
+                "camera_path": [{"position": [0, 1, 4], "look_at": [0, 0, 0]}] * 1001,
+            },
+            422,
+            "frames",
+        ),
+        (
+            "job bad camera path",
+            "POST",
+            "/v1/jobs",
+            {
+                **job,
+                "kind": "animation",
+                "camera_path": [{"position": [0, 0, 0], "look_at": [0, 0, 0]}],
+            },
+            422,
+            "look_at",
+        ),
+        (
+            "query zero direction",
+            "POST",
+            f"/v1/scenes/{scene_id}/query",
+            {"origin": [0, 0, 0], "direction": [0, 0, 0]},
+            422,
+            "zero",
+        ),
+        (
+            "query ray and pixel",
+            "POST",
+            f"/v1/scenes/{scene_id}/query",
+            {"origin": [0, 0, 0], "direction": [0, 0, 1], "x": 1, "y": 1},
+            422,
+            "either",
+        ),
+        (
+            "query pixel outside",
+            "POST",
+            f"/v1/scenes/{scene_id}/query",
+            {"x": 500, "y": 1},
+            422,
+            "outside",
+        ),
+        (
+            "session bad camera",
+            "POST",
+            "/v1/sessions",
+            {"scene_id": scene_id, "camera": {"position": [0, 0, 0], "look_at": [0, 0, 0]}},
+            422,
+            "look_at",
+        ),
+        (
+            "session too large",
+            "POST",
+            "/v1/sessions",
+            {"scene_id": scene_id, "width": 9000, "height": 100},
+            422,
+            "resolution",
+        ),
+    ]
+
+
+def test_bad_requests_on_a_scene(client):
+    scene = upload_tiny(client)
+    animated = client.post(
+        "/v1/scenes", files={"scene": ("a.json", json.dumps(animated_scene()).encode())}
+    ).json()
+    cases = scene_requests(scene["id"], animated["id"])
+    for name, method, path, body, status, word in cases:
+        response = client.request(method, path, json=body)
+        try:
+            check(response, status, word)
+        except AssertionError as error:
+            raise AssertionError(f"{name}: {error}") from None
+    # Nothing was half-applied: the scene is still at version 0.
+    assert client.get(f"/v1/scenes/{scene['id']}").json()["version"] == 0
+    assert len(UPLOADS) + len(OTHERS) + len(cases) >= 30
+
+
+def test_result_before_it_exists(client):
+    scene = upload_tiny(client)
+    job = client.post("/v1/jobs", json={"scene_id": scene["id"], "spp": 1}).json()
+    check(client.get(f"/v1/jobs/{job['id']}/frames/7"), 404, "no finished frame")
+    check(client.get(f"/v1/jobs/{job['id']}/result?format=tiff"), 422, "format")
+    wait_job(client, job["id"])
+
+
+def test_limits_on_upload_size_and_triangles(client, settings_of):
+    settings_of(client, max_upload_bytes=4096)
+    big = tiny_json() + b" " * 5000
+    check(client.post("/v1/scenes", files={"scene": ("s.json", big)}), 413, "limit")
+    settings_of(client, max_upload_bytes=64 << 20, max_triangles=10)
+    check(client.post("/v1/scenes", files={"scene": ("s.json", tiny_json())}), 422, "triangles")
+
+
+def test_bundle_limits(client, settings_of):
+    settings_of(client, max_bundle_files=3)
+    many = zip_bytes({f"f{i}.txt": b"x" for i in range(5)} | {"scene.json": tiny_json()})
+    check(client.post("/v1/scenes", files={"bundle": ("b.zip", many)}), 413, "entries")
+    settings_of(client, max_bundle_files=256, max_unpacked_bytes=2048)
+    big = zip_bytes({"scene.json": tiny_json(), "pad.txt": b"abc" * 2000})
+    check(client.post("/v1/scenes", files={"bundle": ("b.zip", big)}), 413, "unpacks")
+
+
+def test_bearer_token(client, settings_of):
+    settings_of(client, token="s3cret-token")
+    check(client.get("/v1/scenes"), 401, "token")
+    assert client.get("/v1/scenes").headers["www-authenticate"] == "Bearer"
+    check(client.get("/v1/scenes", headers={"Authorization": "Basic abc"}), 401, "Bearer")
+    check(
+        client.get("/v1/scenes", headers={"Authorization": "Bearer wrong-token"}), 403, "not valid"
+    )
+    assert (
+        client.get("/v1/scenes", headers={"Authorization": "Bearer s3cret-token"}).status_code
+        == 200
+    )
+    assert client.get("/v1/scenes?access_token=s3cret-token").status_code == 200
+    assert client.get("/healthz").status_code == 200  # health stays open
+    assert client.get("/").status_code == 200
+
+
+def test_cors(tmp_path):
+    from api.app import create_app
+
+    app = create_app(make_settings(tmp_path, cors_origins="http://viewer.example"))
+    plain = TestClient(app)  # no lifespan: CORS answers before any route runs
+    r = plain.options(
+        "/v1/scenes",
+        headers={"Origin": "http://viewer.example", "Access-Control-Request-Method": "POST"},
+    )
+    assert r.status_code == 200
+    assert r.headers["access-control-allow-origin"] == "http://viewer.example"
+    r = plain.options(
+        "/v1/scenes",
+        headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "POST"},
+    )
+    assert "access-control-allow-origin" not in r.headers
+
+
+def test_settings_refuse_unsafe_values(tmp_path):
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError):
+        make_settings(tmp_path, balancer="fastest")
+    with pytest.raises(ValidationError):
+        make_settings(tmp_path, token="short")
+    with pytest.raises(ValidationError):
+        make_settings(tmp_path, max_queue=0)

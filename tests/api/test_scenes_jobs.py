@@ -1,0 +1,246 @@
+"""Scenes and jobs through the test client: upload (JSON with files, zip bundle, one mesh
+file, a JSON body), inspect, commit, query, delete; stills and animations by spp, target
+error and time budget; progress, events, cancel, results in three formats."""
+
+import io
+import json
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from tests.api.conftest import (
+    animated_scene,
+    cornell_files,
+    tiny_json,
+    upload_json,
+    upload_tiny,
+    wait_job,
+    zip_bytes,
+)
+from tests.helpers import GLTF_BOX, tiny_scene
+from tracer.compile import compile_scene
+from tracer.loader import load_scene
+from tracer.render import render_image
+
+
+def test_health_ready_metrics_openapi(client):
+    assert client.get("/healthz").json() == {"status": "ok"}
+    ready = client.get("/readyz")
+    assert ready.status_code == 200 and ready.json()["tracers"] == 1
+    doc = client.get("/openapi.json").json()
+    assert "/v1/scenes" in doc["paths"] and "/v1/jobs/{job_id}/events" in doc["paths"]
+    metrics = client.get("/metrics")
+    assert metrics.status_code == 200
+    assert "tilerender_http_requests_total" in metrics.text
+    assert "tilerender_tracers_ready 1.0" in metrics.text
+
+
+def test_upload_json_with_files_and_inspect(client):
+    r = client.post("/v1/scenes", files=cornell_files())
+    assert r.status_code == 201, r.text
+    scene = r.json()
+    assert r.headers["location"] == f"/v1/scenes/{scene['id']}"
+    assert scene["source"] == "json" and scene["version"] == 0
+    assert scene["triangles"] == 36
+    assert scene["bounds"]["min"] == pytest.approx([-1, -1.01, -1], abs=1e-6)
+    assert scene["effects"]["area_lights"] == ["light"]
+    assert client.get(f"/v1/scenes/{scene['id']}").json()["triangles"] == 36
+    listed = client.get("/v1/scenes").json()
+    assert scene["id"] in [s["id"] for s in listed["data"]]
+
+
+def test_upload_bundle_mesh_and_json_body(client):
+    bundle = zip_bytes({"scene.json": tiny_json(), "extra/readme.txt": b"hello"})
+    r = client.post("/v1/scenes", files={"bundle": ("scene.zip", bundle, "application/zip")})
+    assert r.status_code == 201, r.text
+    assert r.json()["source"] == "bundle" and r.json()["name"] == "scene"
+    r = client.post("/v1/scenes", content=bundle, headers={"content-type": "application/zip"})
+    assert r.status_code == 201, r.text
+    r = client.post("/v1/scenes", files={"mesh": ("Box.gltf", GLTF_BOX.read_bytes())})
+    assert r.status_code == 201, r.text
+    assert r.json()["source"] == "mesh" and r.json()["triangles"] == 12 + 2  # box + light
+    r = client.post("/v1/scenes", content=tiny_json(), headers={"content-type": "application/json"})
+    assert r.status_code == 201, r.text
+
+
+def test_commit_versions_and_all_or_nothing(client):
+    scene = upload_tiny(client)
+    url = f"/v1/scenes/{scene['id']}"
+    move = {"op": "set_transform", "node": "cube", "transform": {"translate": [0.3, 0.5, 0]}}
+    r = client.post(url + "/commits", json={"ops": [move]})
+    assert r.json() == {"scene_id": scene["id"], "version": 1}
+    r = client.patch(url, json={"ops": [{"op": "set_sky", "radiance": [0.1, 0.1, 0.1]}]})
+    assert r.json()["version"] == 2
+    bad = [move, {"op": "set_transform", "node": "nope", "transform": {}}]
+    r = client.post(url + "/commits", json={"ops": bad})
+    assert r.status_code == 422 and "nope" in r.json()["error"]["message"]
+    detail = client.get(url).json()
+    assert detail["version"] == 2 and detail["sky"] == [0.1, 0.1, 0.1]
+
+
+def test_query_ray_and_pixel(client):
+    scene = upload_tiny(client)
+    url = f"/v1/scenes/{scene['id']}/query"
+    r = client.post(url, json={"origin": [0, 5, 0.1], "direction": [0, -1, 0]})
+    assert r.status_code == 200, r.text
+    hit = r.json()
+    assert hit["hit"] and hit["node_name"] == "lamp" and hit["distance"] == pytest.approx(2.0)
+    r = client.post(url, json={"x": 6, "y": 7.5})  # bottom centre of the 12x8 image: the floor
+    assert r.json()["hit"] and r.json()["node_name"] == "floor", r.json()
+    r = client.post(url, json={"origin": [0, 5, 0], "direction": [0, 1, 0]})
+    assert r.json()["hit"] is False
+    # After a commit the query sees the new version.
+    ops = [{"op": "remove_node", "node": "lamp"}]
+    assert client.post(f"/v1/scenes/{scene['id']}/commits", json={"ops": ops}).status_code == 200
+    r = client.post(url, json={"origin": [0, 5, 0.1], "direction": [0, -1, 0]})
+    assert r.json()["node_name"] == "cube" and r.json()["version"] == 1
+
+
+def test_delete_scene(client):
+    scene = upload_tiny(client)
+    assert client.delete(f"/v1/scenes/{scene['id']}").status_code == 204
+    assert client.get(f"/v1/scenes/{scene['id']}").status_code == 404
+    assert client.delete(f"/v1/scenes/{scene['id']}").status_code == 404
+
+
+def test_still_job_equals_render_image_and_formats(client, tmp_path):
+    scene = upload_tiny(client)
+    r = client.post("/v1/jobs", json={"scene_id": scene["id"], "spp": 3, "width": 16, "height": 10})
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json()["id"])
+    assert job["status"] == "done", job
+    assert job["progress"]["frames_done"] == 1 and job["frames"][0]["spp"] == 3
+    npy = np.load(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/result?format=npy").content))
+    path = tmp_path / "scene.json"
+    path.write_bytes(tiny_json())
+    state = load_scene(path)
+    from tracer import scene_format as fmt
+
+    camera = fmt.override(state.camera, width=16, height=10)
+    settings = fmt.override(state.render, spp=3)
+    expected = render_image(compile_scene(state), camera, settings)[0]
+    assert npy.dtype == np.float32 and np.array_equal(npy, expected)
+    png = client.get(f"/v1/jobs/{job['id']}/frames/0?format=png")
+    assert png.headers["content-type"] == "image/png"
+    assert Image.open(io.BytesIO(png.content)).size == (16, 10)
+    exr = client.get(f"/v1/jobs/{job['id']}/result?format=exr")
+    assert exr.status_code == 200 and exr.content[:4] == b"\x76\x2f\x31\x01"
+
+
+def test_animation_by_keyframes_and_camera_path(client):
+    scene = upload_json(client, animated_scene(frames=4))
+    assert scene["animation"]["frames"] == 4
+    r = client.post(
+        "/v1/jobs", json={"scene_id": scene["id"], "kind": "animation", "spp": 1, "frames": [1, 3]}
+    )
+    job = wait_job(client, r.json()["id"])
+    assert job["status"] == "done" and [f["frame"] for f in job["frames"]] == [1, 3]
+    a = client.get(f"/v1/jobs/{job['id']}/frames/1?format=npy").content
+    b = client.get(f"/v1/jobs/{job['id']}/frames/3?format=npy").content
+    assert a != b
+    # the scene itself never moved: its version is still 0
+    assert client.get(f"/v1/scenes/{scene['id']}").json()["version"] == 0
+    path = [
+        {"position": [0, 1.5, 4], "look_at": [0, 0.5, 0]},
+        {"position": [2, 1.5, 3], "look_at": [0, 0.5, 0]},
+    ]
+    r = client.post(
+        "/v1/jobs",
+        json={"scene_id": scene["id"], "kind": "animation", "spp": 1, "camera_path": path},
+    )
+    job = wait_job(client, r.json()["id"])
+    assert job["status"] == "done" and len(job["frames"]) == 2
+
+
+def test_progressive_jobs(client):
+    scene = upload_tiny(client)
+    r = client.post("/v1/jobs", json={"scene_id": scene["id"], "target_error": 0.2, "max_spp": 64})
+    job = wait_job(client, r.json()["id"])
+    assert job["status"] == "done", job
+    frame = job["frames"][0]
+    assert frame["error_estimate"] is not None
+    assert frame["error_estimate"] <= 0.2 or frame["spp"] >= 63
+    r = client.post("/v1/jobs", json={"scene_id": scene["id"], "time_budget": 0.5, "max_spp": 4096})
+    job = wait_job(client, r.json()["id"])
+    assert job["status"] == "done" and job["frames"][0]["spp"] >= 2
+
+
+def test_events_progress_and_cancel(client):
+    scene = upload_json(client, animated_scene(frames=40))
+    body = {"scene_id": scene["id"], "kind": "animation", "spp": 16, "width": 64, "height": 48}
+    job = client.post("/v1/jobs", json=body).json()
+    events = []
+    with client.stream("GET", f"/v1/jobs/{job['id']}/events") as stream:
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        kind = None
+        for line in stream.iter_lines():
+            if line.startswith("event: "):
+                kind = line[7:]
+            elif line.startswith("data: "):
+                events.append((kind, json.loads(line[6:])))
+                if kind == "frame" and events[-1][1]["frame"] >= 1:
+                    r = client.post(f"/v1/jobs/{job['id']}/cancel")
+                    assert r.status_code == 200 and r.json()["status"] == "cancelled"
+                if kind in ("done", "error", "cancelled"):
+                    break
+    kinds = [k for k, _ in events]
+    assert kinds[0] == "status" and "progress" in kinds and "frame" in kinds
+    assert kinds[-1] == "cancelled"
+    progress = next(d for k, d in events if k == "progress")
+    assert progress["frames_total"] == 40 and progress["lines_total"] == 48
+    final = client.get(f"/v1/jobs/{job['id']}").json()
+    assert final["status"] == "cancelled" and 2 <= len(final["frames"]) < 40
+    time.sleep(0.5)  # nothing more is rendered or recorded for it
+    assert len(client.get(f"/v1/jobs/{job['id']}").json()["frames"]) == len(final["frames"])
+    assert client.post(f"/v1/jobs/{job['id']}/cancel").status_code == 409
+    assert client.get(f"/v1/jobs/{job['id']}/frames/0?format=png").status_code == 200
+
+
+def test_status_answers_while_rendering(client):
+    """The event loop never waits for the cluster: status requests stay fast while a job
+    renders (the strict p99 target is measured by bench/api_latency.py)."""
+    scene = upload_tiny(client)
+    body = {"scene_id": scene["id"], "spp": 256, "width": 160, "height": 120}
+    job = client.post("/v1/jobs", json=body).json()
+    times = []
+    while True:
+        start = time.perf_counter()
+        status = client.get(f"/v1/jobs/{job['id']}").json()
+        times.append(time.perf_counter() - start)
+        if status["status"] != "queued" and status["status"] != "running":
+            break
+        time.sleep(0.01)
+    assert status["status"] == "done"
+    assert len(times) > 5 and sorted(times)[int(0.9 * len(times))] < 0.25, times
+
+
+def test_queue_full_is_429(client, settings_of):
+    scene = upload_tiny(client)
+    settings_of(client, max_queue=1)
+    body = {"scene_id": scene["id"], "spp": 64, "width": 64, "height": 64}
+    first = client.post("/v1/jobs", json=body)
+    assert first.status_code == 202
+    r = client.post("/v1/jobs", json=body)
+    assert r.status_code == 429 and r.json()["error"]["code"] == "queue_full"
+    assert r.headers["retry-after"]
+    wait_job(client, first.json()["id"])
+
+
+def test_cluster_and_balancer(client):
+    info = client.get("/v1/cluster").json()
+    assert info["ready"] and len(info["tracers"]) == 1
+    assert info["tracers"][0]["state"] == "ready"
+    r = client.put("/v1/cluster/balancer", json={"name": "robin-hood"})
+    assert r.status_code == 200 and r.json()["balancer"] == "robin-hood"
+    client.put("/v1/cluster/balancer", json={"name": "cost-aware"})
+    info = client.get("/v1/cluster").json()
+    if info["last_frame"]:
+        tracer = info["tracers"][0]
+        assert tracer["lines_last_frame"] == info["last_frame"]["height"]
+        assert tracer["idle_percent"] == 0.0
+
+
+def test_tiny_scene_helper_is_valid():
+    assert tiny_scene()["camera"]["width"] == 12

@@ -1,0 +1,116 @@
+"""Interactive sessions through the test client: frames, camera updates, commits showing in
+the frames, stats, closing and idle expiry. (The endless MJPEG stream is read from a real
+server in test_live.py: the test client cannot end an infinite response.)"""
+
+import io
+import time
+
+import numpy as np
+from PIL import Image
+
+from tests.api.conftest import upload_tiny
+
+
+def jpeg(response) -> np.ndarray:
+    assert response.status_code == 200, response.text
+    assert response.headers["content-type"] == "image/jpeg"
+    return np.asarray(Image.open(io.BytesIO(response.content)).convert("RGB"), np.float64)
+
+
+def next_frame(client, session_id: str, after: int):
+    r = client.get(f"/v1/sessions/{session_id}/frame.jpg", params={"after": after})
+    return jpeg(r), int(r.headers["x-frame-seq"]), int(r.headers["x-frame-version"])
+
+
+def open_session(client, scene_id: str, **extra) -> dict:
+    r = client.post("/v1/sessions", json={"scene_id": scene_id, "width": 48, "height": 32, **extra})
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def test_session_frames_commits_and_camera(client):
+    scene = upload_tiny(client)
+    session = open_session(client, scene["id"])
+    sid = session["id"]
+    assert session["stream_url"] == f"/v1/sessions/{sid}/stream"
+    first, seq, version = next_frame(client, sid, 0)
+    assert first.shape == (32, 48, 3) and first.mean() > 1.0 and version == 0
+
+    # A commit shows in a later frame: the floor and cube turn red.
+    ops = [{"op": "set_material", "name": "grey", "material": {"reflectance": [0.9, 0.0, 0.0]}}]
+    assert (
+        client.post(f"/v1/scenes/{scene['id']}/commits", json=ops and {"ops": ops}).status_code
+        == 200
+    )
+    deadline = time.monotonic() + 60
+    before = first.mean((0, 1))
+    while True:  # the session blends the change in over a few frames
+        image, seq, version = next_frame(client, sid, seq)
+        means = image.mean((0, 1))
+        turned_red = means[1] < 0.9 * before[1] and means[0] > means[1] + 5
+        if (version == 1 and turned_red) or time.monotonic() > deadline:
+            break
+    # green light comes only from the white lamp now: the picture turned red
+    assert version == 1 and turned_red, (means, before)
+
+    # A camera update shows too, and its latency is reported.
+    r = client.put(f"/v1/sessions/{sid}/camera", json={"position": [3, 4, 3], "look_at": [0, 0, 0]})
+    assert r.status_code == 200, r.text
+    moved, seq, _ = next_frame(client, sid, seq)
+    moved, seq, _ = next_frame(client, sid, seq)
+    assert np.abs(moved - image).mean() > 1.0
+    stats = client.get(f"/v1/sessions/{sid}").json()["stats"]
+    assert stats["camera_latency_ms"] is not None and stats["camera_latency_ms"] > 0
+    assert stats["frames_streamed"] >= 3 and "fps" in stats and "spp" in stats
+
+    listed = client.get("/v1/sessions").json()
+    assert sid in [s["id"] for s in listed["data"]]
+    assert client.delete(f"/v1/sessions/{sid}").status_code == 204
+    assert client.get(f"/v1/sessions/{sid}").status_code == 404
+
+
+def test_sessions_limit_and_expiry(client, settings_of):
+    scene = upload_tiny(client)
+    settings_of(client, max_sessions=1, session_idle_seconds=1.0)
+    session = open_session(client, scene["id"])
+    r = client.post("/v1/sessions", json={"scene_id": scene["id"]})
+    assert r.status_code == 429 and r.json()["error"]["code"] == "too_many_sessions"
+    deadline = time.monotonic() + 15
+    while client.get(f"/v1/sessions/{session['id']}").status_code == 200:
+        assert time.monotonic() < deadline, "the idle session did not expire"
+        time.sleep(1.5)  # polling the status counts as activity: poll slower than the limit
+    assert open_session(client, scene["id"])["id"] != session["id"]
+
+
+def test_deleting_the_scene_closes_its_sessions(client):
+    scene = upload_tiny(client)
+    session = open_session(client, scene["id"])
+    next_frame(client, session["id"], 0)
+    assert client.delete(f"/v1/scenes/{scene['id']}").status_code == 204
+    deadline = time.monotonic() + 10
+    while client.get(f"/v1/sessions/{session['id']}").status_code == 200:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+
+
+def test_jobs_and_sessions_share_the_cluster(client):
+    """A long job does not starve a session: frames keep coming while it renders."""
+    scene = upload_tiny(client)
+    body = {
+        "scene_id": scene["id"],
+        "kind": "animation",
+        "spp": 32,
+        "width": 96,
+        "height": 64,
+        "camera_path": [{"position": [0, 1.5, 4], "look_at": [0, 0.5, 0]}] * 8,
+    }
+    job = client.post("/v1/jobs", json=body).json()
+    session = open_session(client, scene["id"])
+    seq = 0
+    seen = 0
+    while client.get(f"/v1/jobs/{job['id']}").json()["status"] in ("queued", "running"):
+        _, seq, _ = next_frame(client, session["id"], seq)
+        seen += 1
+    assert seen >= 3
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "done"
+    client.delete(f"/v1/sessions/{session['id']}")
