@@ -1,4 +1,5 @@
-"""Unidirectional path tracing with next-event estimation, MIS and Russian roulette.
+"""Unidirectional path tracing with next-event estimation, MIS and Russian roulette, and the
+Whitted variant (direct light at diffuse and glossy surfaces, recursion through delta lobes).
 
 ``render_pixels`` renders pixel blocks of lines [y0, y1) of a frame. Every random number is
 drawn from the counter-based RNG keyed by (seed, frame, pixel, sample index) at a fixed dimension
@@ -7,18 +8,43 @@ per path vertex, so a pixel's value never depends on the split of the frame or o
 ``max_depth`` counts path vertices after the camera (Mitsuba's convention): 1 shows only
 emitters seen directly, 2 is direct lighting, 8 allows up to seven bounces.
 
+Every step is guarded by the effect plan's flags (``tracer.effects``): a step the scene does
+not need is skipped. Without material effects every surface is Lambertian, and the kernel calls
+the Lambertian BSDF directly.
+
 The path loop lives inside ``render_pixels`` rather than in a function of its own: numba's
 inliner deep-copies an inlined function's whole body, and copying the path code (with the
 traversals it contains) cost half of the kernel's compile time.
 """
 
+import math
+
 import numpy as np
 
+from tracer import effects
 from tracer.borrow import borrowed
-from tracer.bsdf import diffuse_eval, diffuse_pdf, diffuse_sample
-from tracer.camera import primary_ray
+from tracer.bsdf import (
+    DIELECTRIC,
+    DIFFUSE,
+    SIGMA,
+    bsdf_eval,
+    bsdf_is_delta,
+    bsdf_needs_lobe_choice,
+    bsdf_sample,
+    diffuse_eval,
+    diffuse_pdf,
+    diffuse_sample,
+)
+from tracer.camera import LENS_RADIUS, primary_ray, thin_lens_ray
 from tracer.jit import jit, jit_inline
-from tracer.lights import emission_mean, sample_light
+from tracer.lights import (
+    TRIANGLE,
+    emission_mean,
+    environment_radiance,
+    pick_light,
+    sample_distant_or_point,
+    sample_triangle,
+)
 from tracer.rng import pixel_key, sample_key, uniform, uniform2
 from tracer.sampling import power_heuristic
 from tracer.scene_arrays import borrow_scene
@@ -37,49 +63,98 @@ PIXEL_BLOCK = 32
 
 DIMS_PER_VERTEX = 8
 """Random dimensions reserved per path vertex: light choice (+0), light point (+1, two 32-bit
-uniforms), BSDF direction (+2, two), Russian roulette (+3), four spare. Dimension 0 jitters the
-pixel position (two)."""
+uniforms), BSDF direction (+2, two), Russian roulette (+3), BSDF lobe choice (+4), three
+spare. Dimension 0 jitters the pixel position (two); ``LENS_DIM`` places the lens sample."""
+LENS_DIM = DIMS_PER_VERTEX
+"""The thin lens's two uniforms: the last spare dimension of the first vertex (1 + 7)."""
+
+PATH = 0
+WHITTED = 1
+"""Kernel modes: ``PATH`` (NEE + MIS; ``direct`` is a path of at most two vertices) and
+``WHITTED`` (no MIS; a path continues only through delta lobes)."""
+
+NO_PARAM = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @jit_inline
-def light_sample(s, k, p_o, n_o, dist, p, ng, n, albedo, key, dim):
-    """Next-event estimation at a path vertex: sample an emissive triangle, and return the
-    MIS-weighted contribution it would make (before the path throughput) and the shadow ray
-    ``(origin, direction)`` that decides it (``t`` up to ``shadow_t_max``); a zero contribution
-    needs no shadow ray. The caller traces it: traversals stay out of inlined helpers, whose
-    bodies numba copies at every inlining.
+def material_param(mat_param, mat):
+    """Row ``mat`` of the parameter table as a tuple (``bsdf.PARAMS`` values)."""
+    return (mat_param[mat, 0], mat_param[mat, 1], mat_param[mat, 2], mat_param[mat, 3],
+            mat_param[mat, 4], mat_param[mat, 5], mat_param[mat, 6], mat_param[mat, 7])  # fmt: skip
+
+
+@jit_inline
+def light_sample(s, plan, mis, k, p_o, n_o, dist, p, ng, n, wo, kind, albedo, param, key, dim,
+                 shadow_t_max):  # fmt: skip
+    """Next-event estimation at a path vertex: pick a light (by power) and a point or direction
+    on it, and return the contribution it would make (before the path throughput; MIS-weighted
+    against BSDF sampling when ``mis``) and the shadow ray ``(origin, direction, t_max)`` that
+    decides it; a zero contribution needs no shadow ray. The caller traces it: traversals stay
+    out of inlined helpers, whose bodies numba copies at every inlining.
 
     ``(k, p_o, n_o, dist)`` locate the vertex for spawning rays, ``p`` and ``ng`` are its
-    render-space position and geometric normal, ``n`` the normal facing the viewer.
+    render-space position and geometric normal, ``n`` the normal facing the viewer, ``wo`` the
+    direction back along the path; ``kind``, ``albedo`` and ``param`` its material.
     """
-    u1, u2 = uniform2(key, dim + 1)
-    lk, l_mat, q_o, q_err, nl_o, q, n_l = sample_light(s, uniform(key, dim), u1, u2)
     none = (0.0, 0.0, 0.0)
-    to_light = sub(q, p)
-    dist2 = dot(to_light, to_light)
-    if not dist2 > 0.0:
-        return none, p, to_light
-    inv_dist = 1.0 / np.sqrt(dist2)
-    wi = (to_light[0] * inv_dist, to_light[1] * inv_dist, to_light[2] * inv_dist)
-    cos_l = -dot(n_l, wi)
-    if cos_l == 0.0 or (cos_l < 0.0 and not s.mat_two_sided[l_mat]):
-        return none, p, to_light  # the light faces away
-    f = diffuse_eval(albedo, n, wi)
-    if f[0] == 0.0 and f[1] == 0.0 and f[2] == 0.0:
-        return none, p, to_light
-    # Light density in solid angle: (mean emission / total power) dist^2 / |cos_l| (area cancels).
-    p_light = emission_mean(s.mat_emission, l_mat) / s.light_total[0] * dist2 / abs(cos_l)
-    w = power_heuristic(p_light, diffuse_pdf(n, wi))
-    s_o = spawn(s, k, p_o, n_o, dist, ng, wi)
-    dist_l = offset_distance(s, lk, q_o, q_err, nl_o)
-    s_t = spawn(s, lk, q_o, nl_o, dist_l, n_l, (-wi[0], -wi[1], -wi[2]))
-    g = w / p_light
-    contribution = (
-        f[0] * s.mat_emission[l_mat, 0] * g,
-        f[1] * s.mat_emission[l_mat, 1] * g,
-        f[2] * s.mat_emission[l_mat, 2] * g,
+    e = pick_light(s, uniform(key, dim))
+    u1, u2 = uniform2(key, dim + 1)
+    general = plan & effects.MATERIAL_EFFECTS
+    if s.light_kind[e] == TRIANGLE:
+        lk, l_mat, q_o, q_err, nl_o, q, n_l = sample_triangle(s, e, u1, u2)
+        to_light = sub(q, p)
+        dist2 = dot(to_light, to_light)
+        if not dist2 > 0.0:
+            return none, p, to_light, 0.0
+        inv_dist = 1.0 / np.sqrt(dist2)
+        wi = (to_light[0] * inv_dist, to_light[1] * inv_dist, to_light[2] * inv_dist)
+        cos_l = -dot(n_l, wi)
+        if cos_l == 0.0 or (cos_l < 0.0 and not s.mat_two_sided[l_mat]):
+            return none, p, to_light, 0.0  # the light faces away
+        if general:
+            f, p_bsdf = bsdf_eval(kind, albedo, param, n, wo, wi)
+        else:
+            f = diffuse_eval(albedo, n, wi)
+            p_bsdf = 0.0
+        if f[0] == 0.0 and f[1] == 0.0 and f[2] == 0.0:
+            return none, p, to_light, 0.0
+        # Light density in solid angle: (mean emission / total power) dist^2 / |cos_l|.
+        p_light = emission_mean(s.mat_emission, l_mat) / s.light_total[0] * dist2 / abs(cos_l)
+        w = 1.0
+        if mis:
+            w = power_heuristic(p_light, p_bsdf if general else diffuse_pdf(n, wi))
+        s_o = spawn(s, k, p_o, n_o, dist, ng, wi)
+        dist_l = offset_distance(s, lk, q_o, q_err, nl_o)
+        s_t = spawn(s, lk, q_o, nl_o, dist_l, n_l, (-wi[0], -wi[1], -wi[2]))
+        g = w / p_light
+        contribution = (
+            f[0] * s.mat_emission[l_mat, 0] * g,
+            f[1] * s.mat_emission[l_mat, 1] * g,
+            f[2] * s.mat_emission[l_mat, 2] * g,
+        )
+        return contribution, s_o, sub(s_t, s_o), shadow_t_max
+    # Point, spot, sun or sky.
+    wi, q, finite, li, p_light, delta = sample_distant_or_point(
+        s.light_data, s.sky, s.light_kind[e], s.light_tri[e], p, u1, u2
     )
-    return contribution, s_o, sub(s_t, s_o)
+    if not p_light > 0.0:
+        return none, p, wi, 0.0
+    if general:
+        f, p_bsdf = bsdf_eval(kind, albedo, param, n, wo, wi)
+    else:
+        f = diffuse_eval(albedo, n, wi)
+        p_bsdf = diffuse_pdf(n, wi)
+    if f[0] == 0.0 and f[1] == 0.0 and f[2] == 0.0:
+        return none, p, wi, 0.0
+    w = 1.0
+    if mis and not delta:
+        w = power_heuristic(p_light, p_bsdf)
+    g = w / p_light
+    contribution = (f[0] * li[0] * g, f[1] * li[1] * g, f[2] * li[2] * g)
+    s_o = spawn(s, k, p_o, n_o, dist, ng, wi)
+    if finite:
+        return contribution, s_o, sub(q, s_o), shadow_t_max
+    return contribution, s_o, wi, np.inf
 
 
 @jit
@@ -97,6 +172,8 @@ def render_pixels(
     seed,
     frame,
     shadow_t_max,
+    mode,
+    plan,
     first,
     stride,
     stack_node,
@@ -108,10 +185,11 @@ def render_pixels(
 
     ``scene`` is a ``SceneArrays``. ``out_rgb`` float32 (y1-y0, W, 3) gets the mean of samples
     [sample_start, sample_start + spp) of each pixel, ``out_cost`` int64 (y1-y0, W) the work
-    spent on it. Threads call this with the same stride and different ``first``: interleaved
-    blocks of ``PIXEL_BLOCK`` pixels balance lines of very different cost, and keep threads off
-    each other's cache lines. ``stack_node`` (int32) and ``stack_t`` (float64) are this thread's
-    traversal stacks.
+    spent on it. ``mode`` is ``PATH`` or ``WHITTED``; ``plan`` the effect flags
+    (``tracer.effects``). Threads call this with the same stride and different ``first``:
+    interleaved blocks of ``PIXEL_BLOCK`` pixels balance lines of very different cost, and
+    keep threads off each other's cache lines. ``stack_node`` (int32) and ``stack_t`` (float64)
+    are this thread's traversal stacks.
 
     Every array is borrowed (:mod:`tracer.borrow`) before the loops, so the inlined path code
     passes them around without atomic reference counting.
@@ -120,7 +198,10 @@ def render_pixels(
     camera = borrowed(camera)
     stack_node = borrowed(stack_node)
     stack_t = borrowed(stack_t)
-    has_lights = s.light_cdf.shape[0] > 0
+    has_lights = s.light_cdf.shape[0] > 0 and (plan & effects.LIGHT_SAMPLES) != 0
+    mis = mode == PATH
+    general = (plan & effects.MATERIAL_EFFECTS) != 0
+    refraction = (plan & effects.REFRACTION) != 0
     n_pix = (y1 - y0) * width
     for block in range(first, (n_pix + PIXEL_BLOCK - 1) // PIXEL_BLOCK, stride):
         for i in range(block * PIXEL_BLOCK, min(n_pix, (block + 1) * PIXEL_BLOCK)):
@@ -133,60 +214,103 @@ def render_pixels(
             for sample in range(sample_start, sample_start + spp):
                 key = sample_key(p_key, sample)
                 jx, jy = uniform2(key, 0)
-                o, d = primary_ray(camera, width, height, x + jx, y + jy)
+                if camera[LENS_RADIUS] > 0.0:
+                    l1, l2 = uniform2(key, LENS_DIM)
+                    o, d = thin_lens_ray(camera, width, height, x + jx, y + jy, l1, l2)
+                else:
+                    o, d = primary_ray(camera, width, height, x + jx, y + jy)
                 L = (0.0, 0.0, 0.0)
                 beta = (1.0, 1.0, 1.0)
                 p_bsdf_prev = 0.0
+                delta_prev = False
                 depth = 1
                 while True:
-                    # Trace the ray to the next path vertex; a miss sees the sky.
+                    # Trace the ray to the next path vertex; a miss sees the sky and suns.
                     k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
                     cost += c
                     if k < 0:
-                        L = (L[0] + beta[0] * s.sky[0], L[1] + beta[1] * s.sky[1],
-                             L[2] + beta[2] * s.sky[2])  # fmt: skip
+                        if plan & (effects.SKY | effects.SUN):
+                            weighted = mis and depth > 1 and not delta_prev and has_lights
+                            Le = environment_radiance(s.light_data, s.light_env, s.sky, d,
+                                                      p_bsdf_prev, weighted)  # fmt: skip
+                            L = (L[0] + beta[0] * Le[0], L[1] + beta[1] * Le[1],
+                                 L[2] + beta[2] * Le[2])  # fmt: skip
                         break
                     mat = material_of(s, k, j)
                     p_o, err_o, n_o, p, ng = surface(s, k, j, b0, b1, b2)
                     cos_o = -dot(ng, d)
                     if cos_o == 0.0 or (cos_o < 0.0 and not s.mat_two_sided[mat]):
                         break  # grazing, or the back of a one-sided surface: no light at all
-                    n = ng if cos_o > 0.0 else (-ng[0], -ng[1], -ng[2])
+                    front = cos_o > 0.0
+                    n = ng if front else (-ng[0], -ng[1], -ng[2])
 
-                    # Add emission, MIS-weighted against light sampling after the first vertex.
-                    e_mean = emission_mean(s.mat_emission, mat)
-                    if e_mean > 0.0:
-                        w = 1.0
-                        if depth > 1 and has_lights:
-                            p_light = e_mean / s.light_total[0] * t * t / abs(cos_o)
-                            w = power_heuristic(p_bsdf_prev, p_light)
-                        L = (L[0] + beta[0] * s.mat_emission[mat, 0] * w,
-                             L[1] + beta[1] * s.mat_emission[mat, 1] * w,
-                             L[2] + beta[2] * s.mat_emission[mat, 2] * w)  # fmt: skip
+                    # Absorb along a segment inside a dielectric (Beer-Lambert).
+                    if plan & effects.ABSORPTION and not front and s.mat_kind[mat] == DIELECTRIC:
+                        beta = (beta[0] * math.exp(-s.mat_param[mat, SIGMA] * t),
+                                beta[1] * math.exp(-s.mat_param[mat, SIGMA + 1] * t),
+                                beta[2] * math.exp(-s.mat_param[mat, SIGMA + 2] * t))  # fmt: skip
+
+                    # Add emission, MIS-weighted against light sampling after a non-delta
+                    # bounce.
+                    if plan & effects.AREA_LIGHTS:
+                        e_mean = emission_mean(s.mat_emission, mat)
+                        if e_mean > 0.0:
+                            w = 1.0
+                            if depth > 1 and has_lights and mis and not delta_prev:
+                                p_light = e_mean / s.light_total[0] * t * t / abs(cos_o)
+                                w = power_heuristic(p_bsdf_prev, p_light)
+                            L = (L[0] + beta[0] * s.mat_emission[mat, 0] * w,
+                                 L[1] + beta[1] * s.mat_emission[mat, 1] * w,
+                                 L[2] + beta[2] * s.mat_emission[mat, 2] * w)  # fmt: skip
                     if depth >= max_depth:
                         break
 
-                    # Sample a light (next-event estimation).
+                    # The material at the vertex.
                     dist = offset_distance(s, k, p_o, err_o, n_o)
                     albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
                               np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
+                    wo = (-d[0], -d[1], -d[2])
+                    kind = DIFFUSE
+                    param = NO_PARAM
+                    delta = False
+                    if general:
+                        kind = s.mat_kind[mat]
+                        param = material_param(s.mat_param, mat)
+                        delta = bsdf_is_delta(kind, param)
                     dim = 1 + (depth - 1) * DIMS_PER_VERTEX
-                    if has_lights:
-                        Ld, s_o, s_d = light_sample(s, k, p_o, n_o, dist, p, ng, n, albedo, key,
-                                                    dim)  # fmt: skip
+
+                    # Sample a light (next-event estimation); delta lobes never meet one.
+                    if has_lights and not delta:
+                        Ld, s_o, s_d, t_max = light_sample(s, plan, mis, k, p_o, n_o, dist, p, ng,
+                                                           n, wo, kind, albedo, param, key, dim,
+                                                           shadow_t_max)  # fmt: skip
                         if Ld[0] > 0.0 or Ld[1] > 0.0 or Ld[2] > 0.0:
-                            blocked, c = scene_occluded(s, s_o, s_d, shadow_t_max, stack_node)
-                            cost += c
+                            blocked = False
+                            if plan & effects.SHADOWS:
+                                blocked, c = scene_occluded(s, s_o, s_d, t_max, stack_node)
+                                cost += c
                             if not blocked:
                                 L = (L[0] + beta[0] * Ld[0], L[1] + beta[1] * Ld[1],
                                      L[2] + beta[2] * Ld[2])  # fmt: skip
+                    if mode == WHITTED and not delta:
+                        break  # Whitted: light at diffuse and glossy surfaces is direct only
+                    if depth + 1 >= max_depth and not plan & effects.EMITTER_HITS:
+                        break  # the last ray could only find emission, and nothing emits
 
                     # Sample the BSDF for the next direction and update the throughput.
                     u1, u2 = uniform2(key, dim + 2)
-                    wi, weight, pdf = diffuse_sample(albedo, n, u1, u2)
+                    if general:
+                        u0 = uniform(key, dim + 4) if bsdf_needs_lobe_choice(kind) else 0.0
+                        wi, weight, pdf, delta_prev = bsdf_sample(kind, albedo, param, n, wo,
+                                                                  front, refraction, u0, u1,
+                                                                  u2)  # fmt: skip
+                    else:
+                        wi, weight, pdf = diffuse_sample(albedo, n, u1, u2)
                     if pdf <= 0.0:
                         break
                     beta = (beta[0] * weight[0], beta[1] * weight[1], beta[2] * weight[2])
+                    if beta[0] == 0.0 and beta[1] == 0.0 and beta[2] == 0.0:
+                        break  # nothing more can reach the camera along this path
                     p_bsdf_prev = pdf
                     depth += 1
 

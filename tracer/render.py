@@ -11,11 +11,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracer import config
+from tracer import config, effects
 from tracer import scene_format as fmt
 from tracer.camera import camera_array
 from tracer.compile import CompiledScene
-from tracer.integrator import render_pixels
+from tracer.effects import EffectPlan, effect_plan
+from tracer.integrator import PATH, WHITTED, render_pixels
+from tracer.lights import light_arrays
+from tracer.scene_arrays import SceneArrays
 from tracer.threads import run_parts
 
 SAMPLES_PER_CALL = 1 << 18
@@ -36,6 +39,26 @@ class RenderedLines:
     seconds: float
 
 
+def arrays_for_plan(scene: CompiledScene, plan: EffectPlan) -> SceneArrays:
+    """The scene's arrays with only the lights the plan keeps (the same arrays when it keeps
+    every light the scene has)."""
+    kinds = plan.light_kinds()
+    present = {int(k) for k in scene.lights.kind[scene.lights.weight > 0.0]}
+    if present <= kinds:
+        return scene.arrays
+    light = light_arrays(scene.lights, kinds)
+    return scene.arrays._replace(
+        light_kind=light.kind,
+        light_inst=light.inst,
+        light_tri=light.tri,
+        light_cdf=light.cdf,
+        light_total=light.total,
+        light_data=light.data,
+        light_env=light.env,
+        sky=light.sky,
+    )
+
+
 def render_lines(
     scene: CompiledScene,
     y0: int,
@@ -45,12 +68,14 @@ def render_lines(
     frame: int = 0,
     sample_start: int = 0,
     threads: int | None = None,
+    plan: EffectPlan | None = None,
 ) -> RenderedLines:
     """Render lines [y0, y1) of a frame.
 
     Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
     sample ranges give independent estimates that average to the larger render. ``threads``
-    defaults to every CPU this process may use.
+    defaults to every CPU this process may use. ``plan`` is the effect plan (default: the one
+    ``tracer.effects.effect_plan`` makes of the scene and settings).
     """
     camera = camera or scene.camera
     settings = settings or scene.render
@@ -58,6 +83,8 @@ def render_lines(
         raise ValueError(f"line range [{y0}, {y1}) is not inside [0, {camera.height})")
     if frame < 0 or sample_start < 0:
         raise ValueError("frame and sample_start must be non-negative")
+    if plan is None:
+        plan = effect_plan(scene, settings)
     cam = camera_array(
         np.asarray(camera.position) - scene.origin,
         np.asarray(camera.look_at) - scene.origin,
@@ -65,12 +92,18 @@ def render_lines(
         camera.vfov_deg,
         camera.width,
         camera.height,
+        camera.aperture_radius,
+        camera.focus_distance,
     )
     rgb = np.empty((y1 - y0, camera.width, 3), np.float32)
     cost = np.empty((y1 - y0, camera.width), np.int64)
     start = time.perf_counter()
+    max_depth = settings.max_depth
+    if settings.integrator == "direct" or not plan.flags & effects.INDIRECT:
+        max_depth = min(max_depth, 2)
+    mode = WHITTED if settings.integrator == "whitted" else PATH
     args = (
-        scene.arrays,
+        arrays_for_plan(scene, plan),
         cam,
         camera.width,
         camera.height,
@@ -78,11 +111,13 @@ def render_lines(
         y1,
         sample_start,
         settings.spp,
-        settings.max_depth,
+        max_depth,
         settings.rr_depth,
         settings.seed,
         frame,
         1.0 - config.SHADOW_EPSILON,
+        mode,
+        plan.flags,
     )
 
     def work(part: int, parts: int) -> None:
@@ -117,9 +152,12 @@ def render_image(
         )
     image = np.empty((camera.height, camera.width, 3), np.float32)
     cost = np.empty(camera.height, np.int64)
+    plan = effect_plan(scene, settings)
     for y0 in range(0, camera.height, lines_per_call):
         y1 = min(camera.height, y0 + lines_per_call)
-        part = render_lines(scene, y0, y1, camera, settings, frame, sample_start, threads)
+        part = render_lines(
+            scene, y0, y1, camera, settings, frame, sample_start, threads, plan=plan
+        )
         image[y0:y1] = part.rgb
         cost[y0:y1] = part.cost
         if on_lines is not None:

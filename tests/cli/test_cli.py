@@ -182,7 +182,7 @@ BAD_INPUT = {
     # name: (argv with {tmp} and {scene} placeholders, words the error line must contain)
     "missing scene": (["render", "{tmp}/nope.json", "-o", OUT], ["nope.json"]),
     "bad json": (["render", "{tmp}/bad.json", "-o", OUT], ["not valid JSON"]),
-    "unknown key": (["render", "{tmp}/unknown.json", "-o", OUT], ["lights", "unknown key"]),
+    "unknown key": (["render", "{tmp}/unknown.json", "-o", OUT], ["lamps", "unknown key"]),
     "spp 0": (["render", "{scene}", "-o", OUT, "--spp", "0"], ["--spp", "at least 1"]),
     "spp abc": (["render", "{scene}", "-o", OUT, "--spp", "abc"], ["--spp", "'abc'"]),
     "spp negative": (["render", "{scene}", "-o", OUT, "--spp", "-3"], ["--spp"]),
@@ -222,7 +222,7 @@ BAD_INPUT = {
 def bad_files(tmp_path):
     """The broken inputs BAD_INPUT refers to, in tmp_path."""
     (tmp_path / "bad.json").write_text('{"camera": ')
-    write_json(tmp_path / "unknown.json", tiny_scene(lights=[]))
+    write_json(tmp_path / "unknown.json", tiny_scene(lamps=[]))
     (tmp_path / "inner").mkdir()
     data = tiny_scene()
     data["objects"][1]["shape"] = "../stolen.obj"
