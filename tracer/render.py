@@ -1,5 +1,10 @@
 """Public entry points: render a line range, or a whole image with progress.
 
+``render.integrator`` picks the kernel: ``path``, ``direct`` (a path of two vertices),
+``whitted`` and ``cost`` (the path kernel's work as a heat map, ``tracer.heatmap``) run
+``tracer.integrator`` under the effect plan (``tracer.effects``); ``ao``, ``albedo``,
+``normal`` and ``depth`` run ``tracer.surface_integrators``.
+
 ``render_lines`` is what a tracer runs for its share of a frame; ``render_image`` loops over
 line chunks in Python (one jitted call each), so progress and cancellation stay outside the
 kernel.
@@ -16,9 +21,11 @@ from tracer import scene_format as fmt
 from tracer.camera import camera_array
 from tracer.compile import CompiledScene
 from tracer.effects import EffectPlan, effect_plan
+from tracer.heatmap import cost_heatmap
 from tracer.integrator import PATH, WHITTED, render_pixels
 from tracer.lights import light_arrays
 from tracer.scene_arrays import SceneArrays
+from tracer.surface_integrators import OUTPUTS, render_surface
 from tracer.threads import run_parts
 
 SAMPLES_PER_CALL = 1 << 18
@@ -98,8 +105,34 @@ def render_lines(
     rgb = np.empty((y1 - y0, camera.width, 3), np.float32)
     cost = np.empty((y1 - y0, camera.width), np.int64)
     start = time.perf_counter()
+    if settings.integrator in OUTPUTS:
+        surface_args = (
+            scene.arrays,
+            cam,
+            camera.width,
+            camera.height,
+            y0,
+            y1,
+            sample_start,
+            settings.spp,
+            settings.seed,
+            frame,
+            OUTPUTS[settings.integrator],
+            settings.ao_samples,
+            settings.ao_distance * scene_diagonal(scene),
+        )
+
+        def surface_work(part: int, parts: int) -> None:
+            stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
+            stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
+            render_surface(*surface_args, part, parts, stack_node, stack_t, rgb, cost)
+
+        run_parts(surface_work, threads)
+        seconds = time.perf_counter() - start
+        return RenderedLines(y0, y1, rgb, cost.sum(axis=1), settings.spp, seconds)
     max_depth = settings.max_depth
-    if settings.integrator == "direct" or not plan.flags & effects.INDIRECT:
+    path = settings.integrator in ("path", "cost")
+    if settings.integrator == "direct" or (path and not plan.flags & effects.INDIRECT):
         max_depth = min(max_depth, 2)
     mode = WHITTED if settings.integrator == "whitted" else PATH
     args = (
@@ -126,8 +159,15 @@ def render_lines(
         render_pixels(*args, part, parts, stack_node, stack_t, rgb, cost)
 
     run_parts(work, threads)
+    if settings.integrator == "cost":
+        rgb = cost_heatmap(cost, settings.spp)
     seconds = time.perf_counter() - start
     return RenderedLines(y0, y1, rgb, cost.sum(axis=1), settings.spp, seconds)
+
+
+def scene_diagonal(scene: CompiledScene) -> float:
+    """Length of the diagonal of the scene's bounding box (world units)."""
+    return float(np.linalg.norm(np.subtract(scene.stats.bounds_max, scene.stats.bounds_min)))
 
 
 def render_image(
