@@ -20,6 +20,7 @@ traversals it contains) cost half of the kernel's compile time.
 import math
 
 import numpy as np
+from numba import literally
 
 from tracer import effects
 from tracer.borrow import borrowed
@@ -158,7 +159,32 @@ def light_sample(s, plan, mis, k, p_o, n_o, dist, p, ng, n, wo, kind, albedo, pa
 
 
 @jit
-def render_pixels(
+def render_pixels(scene, camera, width, height, y0, y1, sample_start, spp, max_depth, rr_depth,
+                  seed, frame, shadow_t_max, mode, plan, first, stride, stack_node, stack_t,
+                  out_rgb, out_cost):  # fmt: skip
+    """The path kernel with the effect plan as *runtime flags*: one compiled kernel serves every
+    plan and mode (arguments: ``trace_pixels``)."""
+    trace_pixels(scene, camera, width, height, y0, y1, sample_start, spp, max_depth, rr_depth,
+                 seed, frame, shadow_t_max, mode, plan, first, stride, stack_node, stack_t,
+                 out_rgb, out_cost)  # fmt: skip
+
+
+@jit
+def render_pixels_specialised(scene, camera, width, height, y0, y1, sample_start, spp, max_depth,
+                              rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride,
+                              stack_node, stack_t, out_rgb, out_cost):  # fmt: skip
+    """The path kernel *specialised* for one plan and mode: numba compiles (and caches) one
+    kernel per value, with the flags as constants, so LLVM removes every branch the plan
+    switches off (arguments: ``trace_pixels``). ``docs/effects.md`` compares the two."""
+    literally(mode)
+    literally(plan)
+    trace_pixels(scene, camera, width, height, y0, y1, sample_start, spp, max_depth, rr_depth,
+                 seed, frame, shadow_t_max, mode, plan, first, stride, stack_node, stack_t,
+                 out_rgb, out_cost)  # fmt: skip
+
+
+@jit
+def trace_pixels(
     scene,
     camera,
     width,

@@ -22,7 +22,7 @@ from tracer.camera import camera_array
 from tracer.compile import CompiledScene
 from tracer.effects import EffectPlan, effect_plan
 from tracer.heatmap import cost_heatmap
-from tracer.integrator import PATH, WHITTED, render_pixels
+from tracer.integrator import PATH, WHITTED, render_pixels, render_pixels_specialised
 from tracer.lights import light_arrays
 from tracer.scene_arrays import SceneArrays
 from tracer.surface_integrators import OUTPUTS, render_surface
@@ -76,13 +76,16 @@ def render_lines(
     sample_start: int = 0,
     threads: int | None = None,
     plan: EffectPlan | None = None,
+    specialised: bool | None = None,
 ) -> RenderedLines:
     """Render lines [y0, y1) of a frame.
 
     Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
     sample ranges give independent estimates that average to the larger render. ``threads``
     defaults to every CPU this process may use. ``plan`` is the effect plan (default: the one
-    ``tracer.effects.effect_plan`` makes of the scene and settings).
+    ``tracer.effects.effect_plan`` makes of the scene and settings); ``specialised`` runs a
+    kernel compiled for that plan instead of the one with runtime flags (default:
+    ``config.SPECIALISED_KERNELS``).
     """
     camera = camera or scene.camera
     settings = settings or scene.render
@@ -153,10 +156,14 @@ def render_lines(
         plan.flags,
     )
 
+    if specialised is None:
+        specialised = config.SPECIALISED_KERNELS
+    kernel = render_pixels_specialised if specialised else render_pixels
+
     def work(part: int, parts: int) -> None:
         stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
         stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
-        render_pixels(*args, part, parts, stack_node, stack_t, rgb, cost)
+        kernel(*args, part, parts, stack_node, stack_t, rgb, cost)
 
     run_parts(work, threads)
     if settings.integrator == "cost":
@@ -179,10 +186,13 @@ def render_image(
     lines_per_call: int | None = None,
     threads: int | None = None,
     on_lines: Callable[[RenderedLines], None] | None = None,
+    plan: EffectPlan | None = None,
+    specialised: bool | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Render a whole frame; returns ``(rgb float32 (H, W, 3), cost int64 (H,))``.
 
-    ``on_lines`` is called after each chunk (for progress bars).
+    ``on_lines`` is called after each chunk (for progress bars); ``plan`` and ``specialised``
+    as for :func:`render_lines`.
     """
     camera = camera or scene.camera
     settings = settings or scene.render
@@ -192,11 +202,12 @@ def render_image(
         )
     image = np.empty((camera.height, camera.width, 3), np.float32)
     cost = np.empty(camera.height, np.int64)
-    plan = effect_plan(scene, settings)
+    if plan is None:
+        plan = effect_plan(scene, settings)
     for y0 in range(0, camera.height, lines_per_call):
         y1 = min(camera.height, y0 + lines_per_call)
         part = render_lines(
-            scene, y0, y1, camera, settings, frame, sample_start, threads, plan=plan
+            scene, y0, y1, camera, settings, frame, sample_start, threads, plan, specialised
         )
         image[y0:y1] = part.rgb
         cost[y0:y1] = part.cost
