@@ -9,8 +9,9 @@ per path vertex, so a pixel's value never depends on the split of the frame or o
 emitters seen directly, 2 is direct lighting, 8 allows up to seven bounces.
 
 Every step is guarded by the effect plan's flags (``tracer.effects``): a step the scene does
-not need is skipped. Without material effects every surface is Lambertian, and the kernel calls
-the Lambertian BSDF directly.
+not need is skipped. Without material effects every surface is Lambertian and the kernel never
+reads the kind column; with them, Lambertian hits still take the direct Lambertian code and only
+other kinds go through the BSDF dispatch.
 
 The path loop lives inside ``render_pixels`` rather than in a function of its own: numba's
 inliner deep-copies an inlined function's whole body, and copying the path code (with the
@@ -85,7 +86,7 @@ def material_param(mat_param, mat):
 
 
 @jit_inline
-def light_sample(s, plan, mis, k, p_o, n_o, dist, p, ng, n, wo, kind, albedo, param, key, dim,
+def light_sample(s, mis, k, p_o, n_o, dist, p, ng, n, wo, kind, albedo, param, key, dim,
                  shadow_t_max):  # fmt: skip
     """Next-event estimation at a path vertex: pick a light (by power) and a point or direction
     on it, and return the contribution it would make (before the path throughput; MIS-weighted
@@ -100,7 +101,7 @@ def light_sample(s, plan, mis, k, p_o, n_o, dist, p, ng, n, wo, kind, albedo, pa
     none = (0.0, 0.0, 0.0)
     e = pick_light(s, uniform(key, dim))
     u1, u2 = uniform2(key, dim + 1)
-    general = plan & effects.MATERIAL_EFFECTS
+    general = kind != DIFFUSE
     if s.light_kind[e] == TRIANGLE:
         lk, l_mat, q_o, q_err, nl_o, q, n_l = sample_triangle(s, e, u1, u2)
         to_light = sub(q, p)
@@ -301,14 +302,15 @@ def trace_pixels(
                     delta = False
                     if general:
                         kind = s.mat_kind[mat]
-                        param = material_param(s.mat_param, mat)
-                        delta = bsdf_is_delta(kind, param)
+                        if kind != DIFFUSE:
+                            param = material_param(s.mat_param, mat)
+                            delta = bsdf_is_delta(kind, param)
                     dim = 1 + (depth - 1) * DIMS_PER_VERTEX
 
                     # Sample a light (next-event estimation); delta lobes never meet one.
                     if has_lights and not delta:
-                        Ld, s_o, s_d, t_max = light_sample(s, plan, mis, k, p_o, n_o, dist, p, ng,
-                                                           n, wo, kind, albedo, param, key, dim,
+                        Ld, s_o, s_d, t_max = light_sample(s, mis, k, p_o, n_o, dist, p, ng, n,
+                                                           wo, kind, albedo, param, key, dim,
                                                            shadow_t_max)  # fmt: skip
                         if Ld[0] > 0.0 or Ld[1] > 0.0 or Ld[2] > 0.0:
                             blocked = False
@@ -325,13 +327,14 @@ def trace_pixels(
 
                     # Sample the BSDF for the next direction and update the throughput.
                     u1, u2 = uniform2(key, dim + 2)
-                    if general:
+                    if kind != DIFFUSE:
                         u0 = uniform(key, dim + 4) if bsdf_needs_lobe_choice(kind) else 0.0
                         wi, weight, pdf, delta_prev = bsdf_sample(kind, albedo, param, n, wo,
                                                                   front, refraction, u0, u1,
                                                                   u2)  # fmt: skip
                     else:
                         wi, weight, pdf = diffuse_sample(albedo, n, u1, u2)
+                        delta_prev = False
                     if pdf <= 0.0:
                         break
                     beta = (beta[0] * weight[0], beta[1] * weight[1], beta[2] * weight[2])
