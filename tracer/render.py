@@ -22,7 +22,7 @@ from tracer.camera import camera_array
 from tracer.compile import CompiledScene
 from tracer.effects import EffectPlan, effect_plan
 from tracer.heatmap import cost_heatmap
-from tracer.integrator import PATH, WHITTED, render_pixels, render_pixels_specialised
+from tracer.integrator import PATH, WHITTED, kernel_for, render_pixels_specialised
 from tracer.lights import light_arrays
 from tracer.scene_arrays import SceneArrays
 from tracer.surface_integrators import OUTPUTS, render_surface
@@ -158,7 +158,7 @@ def render_lines(
 
     if specialised is None:
         specialised = config.SPECIALISED_KERNELS
-    kernel = render_pixels_specialised if specialised else render_pixels
+    kernel = render_pixels_specialised if specialised else kernel_for(plan.flags)
 
     def work(part: int, parts: int) -> None:
         stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)

@@ -66,8 +66,9 @@ def render_surface(
     out_cost,
 ):
     """Render ``output`` (``AO``, ``ALBEDO``, ``NORMAL`` or ``DEPTH``) for pixel blocks
-    ``first, first + stride, ...`` of lines [y0, y1); arguments as ``render_pixels``'s, plus
-    ``ao_samples`` occlusion rays per camera sample of length ``ao_length`` (render-space
+    ``first, first + stride, ...`` of lines [y0, y1); arguments as the path kernel's
+    (``integrator.path_kernel``), plus ``ao_samples`` occlusion rays per camera sample of
+    length ``ao_length`` (render-space
     units)."""
     s = borrow_scene(scene)
     camera = borrowed(camera)
