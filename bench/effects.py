@@ -3,10 +3,13 @@
 For every sample scene (``scenes/*``), three contenders render the same frame in this process,
 interleaved round by round after a warm-up each:
 
-- ``all``: every effect on (``render.effect_plan: false``), the kernel with runtime flags;
-- ``plan``: the scene's effect plan, the same kernel (the default renderer);
-- ``specialised``: the plan, with the kernel compiled for that plan (``numba.literally``: the
-  flags are constants, LLVM removes the branches they switch off).
+- ``all``: every effect on (``render.effect_plan: false``): the full build of the path kernel
+  (material dispatch and every light kind compiled in), every flag set;
+- ``plan``: the scene's effect plan (the default renderer): the build the plan needs
+  (``integrator.kernel_for``: without the material dispatch and the non-triangle lights when
+  the plan has neither) with the plan's runtime flags;
+- ``specialised``: the plan, with the full build compiled for that one plan
+  (``numba.literally``: every flag a constant, LLVM removes the branches they switch off).
 
 Reported per scene: the effects the plan skips, median and best seconds, the speed-up of the
 plan over all effects (ratio of the medians, and the median of the per-round ratios) and of
