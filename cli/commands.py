@@ -15,6 +15,7 @@ from cli.main import CommandFailed, UsageError
 from tracer import numba_cache
 from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene
+from tracer.effects import effect_plan
 from tracer.errors import SceneError
 from tracer.image_io import check_output_path, write_image
 from tracer.loader import format_validation_error, load_scene
@@ -38,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
         if args.command == "schema":
             print(scene_schema_json())
             return 0
+        if args.command == "plan":
+            return cmd_plan(args)
         return cmd_info(args)
     except BrokenPipeError:
         raise
@@ -56,21 +59,25 @@ def settings_for(scene: CompiledScene | SceneState, args: argparse.Namespace):
     try:
         camera = fmt.override(scene.camera, width=args.width, height=args.height)
         settings = fmt.override(
-            scene.render, spp=args.spp, seed=args.seed, max_depth=args.max_depth
+            scene.render,
+            spp=args.spp,
+            seed=args.seed,
+            max_depth=args.max_depth,
+            integrator=args.integrator,
         )
     except pydantic.ValidationError as exc:
         raise UsageError(format_validation_error(exc)) from None
     return camera, settings
 
 
-def warm_up(scene: CompiledScene, quiet: bool) -> None:
+def warm_up(scene: CompiledScene, settings: fmt.RenderSettings, quiet: bool) -> None:
     """Compile the render kernel (or load it from the cache) with a one-pixel render."""
     cached = numba_cache.kernels_cached()
     if not cached and not quiet:
         stderr.print("compiling render kernels (first run only; cached afterwards)...")
     start = time.perf_counter()
     tiny = fmt.override(scene.camera, width=1, height=1)
-    render_lines(scene, 0, 1, tiny, fmt.override(scene.render, spp=1), threads=1)
+    render_lines(scene, 0, 1, tiny, fmt.override(settings, spp=1), threads=1)
     if not cached and not quiet:
         stderr.print(f"compiled in {time.perf_counter() - start:.1f} s")
 
@@ -85,7 +92,7 @@ def render_to_file(
     label: str,
 ) -> float:
     """Render with a progress bar and write every output; returns seconds spent rendering."""
-    warm_up(scene, quiet)
+    warm_up(scene, settings, quiet)
     samples_total = camera.width * camera.height * settings.spp
     start = time.perf_counter()
     with Progress(
@@ -112,6 +119,7 @@ def render_to_file(
         "version": tracer_version(),
         "camera": camera.model_dump(),
         "render": settings.model_dump(),
+        "effect_plan": effect_plan(scene, settings).to_json(),
         "seconds": round(seconds, 3),
     }
     for path in outputs:
@@ -334,6 +342,22 @@ def cmd_samples(args: argparse.Namespace) -> int:
 def scene_schema_json() -> str:
     """The JSON Schema of scene files, as committed in docs/scene-schema.json."""
     return json.dumps(fmt.SceneFile.model_json_schema(), indent=2, sort_keys=True)
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    scene = load(args.scene)
+    try:
+        settings = fmt.override(scene.render, integrator=args.integrator, max_depth=args.max_depth)
+    except pydantic.ValidationError as exc:
+        raise UsageError(format_validation_error(exc)) from None
+    report = {
+        "scene": args.scene,
+        "integrator": settings.integrator,
+        **effect_plan(scene, settings).to_json(),
+    }
+    json.dump(report, sys.stdout, indent=2)
+    print()
+    return 0
 
 
 def cmd_info(args: argparse.Namespace) -> int:

@@ -13,6 +13,8 @@ from collections.abc import Sequence
 
 EXIT_FAILED = 1
 EXIT_USAGE = 2
+INTEGRATORS = ("path", "direct", "whitted", "ao", "albedo", "normal", "depth", "cost")
+"""The scene format's integrators (tracer.scene_format.INTEGRATORS; a test keeps them equal)."""
 EXIT_INTERRUPTED = 130
 
 DESCRIPTION = """\
@@ -36,6 +38,8 @@ examples:
   tilerender serve                       (the service and viewer on 127.0.0.1:8000)
   tilerender serve --port 9000 --ray-address 10.0.0.5:6379 --token SECRET
   tilerender info scenes/cornell-box/scene.json
+  tilerender plan scenes/cornell-box/scene.json
+  tilerender render scenes/cornell-box/scene.json -o ao.png --integrator ao
   tilerender schema > scene-schema.json"""
 
 
@@ -120,6 +124,19 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="describe a scene: geometry, materials, lights, camera")
     info.add_argument("scene", metavar="SCENE")
 
+    plan = sub.add_parser(
+        "plan",
+        help="show the effects a scene needs (its effect plan) and why",
+        description="Print, as JSON, the effects a render of SCENE runs and the ones it skips, "
+        "each with the rule that decided it (docs/effects.md). Options override the scene's "
+        "render settings, as for render.",
+    )
+    plan.add_argument("scene", metavar="SCENE")
+    plan.add_argument("--integrator", choices=INTEGRATORS, help="integrator to plan for")
+    plan.add_argument(
+        "--max-depth", type=positive_int, help="path vertices after the camera (as for render)"
+    )
+
     sub.add_parser(
         "schema",
         help="print the JSON Schema of scene files",
@@ -183,6 +200,11 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=positive_int, help="image width in pixels")
     parser.add_argument("--height", type=positive_int, help="image height in pixels")
     parser.add_argument("--seed", type=non_negative_int, help="random seed")
+    parser.add_argument(
+        "--integrator",
+        choices=INTEGRATORS,
+        help="path (default), direct, whitted, ao, or a debug output: albedo, normal, depth, cost",
+    )
     parser.add_argument(
         "--max-depth",
         type=positive_int,

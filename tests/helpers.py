@@ -151,3 +151,34 @@ def project(camera, points: np.ndarray) -> np.ndarray:
     xy = np.stack([x, y], axis=1)
     xy[depth <= 0.0] = np.nan
     return xy
+
+
+def compile_dict(data: dict, directory: Path = SCENES):
+    """Compile a scene given as a tilerender/1 dict (mesh paths relative to ``directory``)."""
+    from tracer.compile import compile_scene
+    from tracer.loader import scene_from_file_model
+    from tracer.scene_format import SceneFile
+
+    return compile_scene(scene_from_file_model(SceneFile.model_validate(data), directory))
+
+
+def render_passes(scene, passes: int, spp: int, camera=None, **changes) -> np.ndarray:
+    """``passes`` independent renders over disjoint sample ranges, float64 (K, H, W, 3)."""
+    from tracer.render import render_image
+    from tracer.scene_format import override
+
+    settings = override(scene.render, spp=spp, **changes)
+    return np.stack(
+        [
+            render_image(scene, camera, settings=settings, sample_start=k * spp)[0]
+            for k in range(passes)
+        ]
+    ).astype(np.float64)
+
+
+def mean_and_error(passes: np.ndarray, axis=(1, 2)) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over passes of each pass's mean over ``axis``, and its standard error (from the
+    spread of the passes), per channel."""
+    per_pass = passes.mean(axis=axis)
+    k = per_pass.shape[0]
+    return per_pass.mean(axis=0), per_pass.std(axis=0, ddof=1) / np.sqrt(k)

@@ -36,3 +36,20 @@ def test_architecture_names_every_module():
         if path.name != "__init__.py" and path.name not in text
     ]
     assert not missing, f"docs/architecture.md does not mention {missing}"
+
+
+def test_scene_format_fragments_validate():
+    """Every JSON fragment in docs/scene-format.md, added to the first example, is a valid
+    scene (the animation fragment is checked in tests/tracer/test_scene_animation.py)."""
+    import re
+
+    from tracer.scene_format import SceneFile
+
+    text = (ROOT / "docs" / "scene-format.md").read_text(encoding="utf-8")
+    blocks = [json.loads(b) for b in re.findall(r"```json\n(.*?)```", text, re.S)]
+    first = blocks[0]
+    SceneFile.model_validate(first)
+    fragments = [b for b in blocks[1:] if "animation" not in b]
+    assert any("lights" in b for b in fragments)
+    for fragment in fragments:
+        SceneFile.model_validate({**first, **fragment})

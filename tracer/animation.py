@@ -122,6 +122,8 @@ def camera_at(keys: Sequence[CameraKey], time: float, base: fmt.Camera | None = 
             vfov_deg=vfov,
             width=size.width,
             height=size.height,
+            aperture_radius=size.aperture_radius,
+            focus_distance=size.focus_distance,
         )
     except pydantic.ValidationError as error:
         raise SceneError(f"camera at t={time}: {_problem(error)}") from None

@@ -1,22 +1,45 @@
-"""Pinhole camera: a float64 array of 14 values that kernels read, and its primary rays."""
+"""Pinhole and thin-lens cameras: a float64 array of 16 values that kernels read, and their
+primary rays.
+
+The thin lens (pbrt-v4's ``PerspectiveCamera``) keeps the pinhole's image of the focus plane:
+a pinhole ray through the film position meets the plane at distance ``focus_distance`` along the
+view direction; the thin-lens ray starts at a point on the lens disc (radius
+``aperture_radius``, in the plane of the film's right and up vectors) and goes through that
+point. An aperture of 0 is the pinhole, ray for ray.
+"""
 
 import math
 
 import numpy as np
 
 from tracer.jit import jit
+from tracer.sampling import square_to_uniform_disk_concentric
 
-CAMERA_SIZE = 14
-"""Layout: position (3), forward (3), right (3), up (3), tan(vfov / 2), aspect (width / height)."""
+CAMERA_SIZE = 16
+"""Layout: position (3), forward (3), right (3), up (3), tan(vfov / 2), aspect (width / height),
+lens radius, focus distance."""
+LENS_RADIUS = 14
+FOCUS_DISTANCE = 15
 
 
-def camera_array(position, look_at, up, vfov_deg: float, width: int, height: int) -> np.ndarray:
-    """Camera constants for kernels; raises ValueError for a degenerate frame."""
+def camera_array(
+    position,
+    look_at,
+    up,
+    vfov_deg: float,
+    width: int,
+    height: int,
+    aperture_radius: float = 0.0,
+    focus_distance: float | None = None,
+) -> np.ndarray:
+    """Camera constants for kernels; raises ValueError for a degenerate frame. The focus
+    distance defaults to the distance from ``position`` to ``look_at``."""
     position = np.asarray(position, dtype=np.float64)
     forward = np.asarray(look_at, dtype=np.float64) - position
     norm = np.linalg.norm(forward)
     if not norm > 0.0:
         raise ValueError("camera look_at must differ from its position")
+    norm_forward = float(norm)
     forward /= norm
     right = np.cross(forward, np.asarray(up, dtype=np.float64))
     norm = np.linalg.norm(right)
@@ -25,7 +48,10 @@ def camera_array(position, look_at, up, vfov_deg: float, width: int, height: int
     right /= norm
     true_up = np.cross(right, forward)
     tan_half = math.tan(math.radians(vfov_deg) * 0.5)
-    return np.concatenate([position, forward, right, true_up, [tan_half, width / height]])
+    if focus_distance is None:
+        focus_distance = norm_forward
+    lens = [float(aperture_radius), float(focus_distance)]
+    return np.concatenate([position, forward, right, true_up, [tan_half, width / height], lens])
 
 
 @jit
@@ -38,3 +64,29 @@ def primary_ray(camera, width, height, fx, fy):
     dz = camera[5] + sx * camera[8] + sy * camera[11]
     inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
     return (camera[0], camera[1], camera[2]), (dx * inv, dy * inv, dz * inv)
+
+
+@jit
+def thin_lens_ray(camera, width, height, fx, fy, u1, u2):
+    """Ray through film position (fx, fy) from the lens point that ``(u1, u2)`` picks (the
+    concentric disc map); rays of one film position meet on the focus plane."""
+    o, d = primary_ray(camera, width, height, fx, fy)
+    radius = camera[LENS_RADIUS]
+    if radius <= 0.0:
+        return o, d
+    # Where the pinhole ray meets the plane of focus (perpendicular to the view direction).
+    t = camera[FOCUS_DISTANCE] / (d[0] * camera[3] + d[1] * camera[4] + d[2] * camera[5])
+    fx_ = o[0] + t * d[0]
+    fy_ = o[1] + t * d[1]
+    fz_ = o[2] + t * d[2]
+    lx, ly = square_to_uniform_disk_concentric(u1, u2)
+    lx *= radius
+    ly *= radius
+    ox = o[0] + lx * camera[6] + ly * camera[9]
+    oy = o[1] + lx * camera[7] + ly * camera[10]
+    oz = o[2] + lx * camera[8] + ly * camera[11]
+    dx = fx_ - ox
+    dy = fy_ - oy
+    dz = fz_ - oz
+    inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+    return (ox, oy, oz), (dx * inv, dy * inv, dz * inv)

@@ -37,7 +37,6 @@ from tracer.scene_model import (
     NodeKey,
     NodeKind,
     SceneState,
-    Sky,
     frozen_array,
     make_mesh,
 )
@@ -80,7 +79,8 @@ class _StateHeader(_Strict):
     version: int
     camera: fmt.Camera
     render: fmt.RenderSettings
-    sky: fmt.Radiance
+    sky: fmt.Sky
+    lights: list[fmt.Light]
     materials: list[tuple[str, fmt.Material]]
     meshes: list[tuple[str, _ArrayIndex, _ArrayIndex]]
     nodes: list[tuple[int, str, int | None, NodeKind, str | None, str | None]]
@@ -133,7 +133,8 @@ def encode_state(state: SceneState) -> bytes:
         "version": state.version,
         "camera": state.camera.model_dump(),
         "render": state.render.model_dump(),
-        "sky": list(state.sky.radiance),
+        "sky": state.sky.model_dump(),
+        "lights": [light.model_dump() for light in state.lights],
         "materials": [[name, m.model_dump()] for name, m in state.materials.items()],
         "meshes": [
             [name, arrays.add(m.vertices), arrays.add(m.faces)] for name, m in state.meshes.items()
@@ -238,7 +239,8 @@ def _build_state(header: _StateHeader, arrays: list[np.ndarray]) -> SceneState:
         nodes=nodes,
         camera=header.camera,
         render=header.render,
-        sky=Sky(header.sky),
+        sky=header.sky,
+        lights=tuple(header.lights),
         animation=_decode_animation(header.animation, arrays),
     )
 

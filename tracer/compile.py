@@ -22,7 +22,6 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import NamedTuple
 
 import numpy as np
 
@@ -31,7 +30,8 @@ from tracer import bvh_update, config
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 from tracer.jit import jit
-from tracer.lights import LightTable, build_light_table
+from tracer.lights import LightTable, build_light_table, light_arrays
+from tracer.materials import MaterialTable, material_table
 from tracer.scene_arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
 from tracer.scene_model import Mesh, SceneState
 from tracer.transforms import round_trip_bound, to_rows
@@ -40,16 +40,6 @@ STATIC_KEY = "\0static"
 """Key of the baked static mesh among the compiled meshes (not a valid user mesh name)."""
 FLOAT32_SAFE_EXTENT = 1e30
 """Largest mesh extent accepted: squares of object-space distances must stay finite."""
-
-
-class MaterialTable(NamedTuple):
-    """Per material, in the state's order: ``kind`` int32 (K,), ``albedo`` and ``emission``
-    float32 (K, 3), ``two_sided`` bool (K,)."""
-
-    kind: np.ndarray
-    albedo: np.ndarray
-    emission: np.ndarray
-    two_sided: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -406,18 +396,6 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
     )
 
 
-def material_table(materials: list[fmt.DiffuseMaterial]) -> MaterialTable:
-    """Columns of the material models, in their order."""
-    from tracer.bsdf import MATERIAL_KINDS
-
-    return MaterialTable(
-        kind=np.array([MATERIAL_KINDS[m.type] for m in materials], dtype=np.int32),
-        albedo=np.array([m.reflectance for m in materials], dtype=np.float32).reshape(-1, 3),
-        emission=np.array([m.emission for m in materials], dtype=np.float32).reshape(-1, 3),
-        two_sided=np.array([m.two_sided for m in materials], dtype=np.bool_),
-    )
-
-
 def _world_box(accel: MeshAccel, xform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     corners = np.array(
         [[x, y, z] for x in (accel.lo[0], accel.hi[0]) for y in (accel.lo[1], accel.hi[1])
@@ -529,7 +507,11 @@ def compile_scene(
         rows = np.arange(first, first + meshes[key].bvh.tri_verts.shape[0])
         mats = pools[p].tri_material[rows] if m < 0 else np.full(rows.shape[0], m, np.int32)
         light_inputs.append((k, pools[p].tri_verts, rows, pools[p].tri_prim[rows], mats, xform[k]))
-    lights = build_light_table(light_inputs, materials.emission)
+    radius = 0.5 * float(np.linalg.norm(hi.max(axis=0).astype(np.float64) - lo.min(axis=0)))
+    lights = build_light_table(
+        light_inputs, materials.emission, state.lights, state.sky, origin, max(radius, 1e-30)
+    )
+    light = light_arrays(lights)
 
     arrays = SceneArrays(
         blas_bounds=(pools[0].bounds, pools[1].bounds),
@@ -550,18 +532,23 @@ def compile_scene(
         mat_albedo=materials.albedo,
         mat_emission=materials.emission,
         mat_two_sided=materials.two_sided,
-        light_inst=lights.inst,
-        light_tri=lights.tri,
-        light_cdf=lights.cdf,
-        light_total=lights.total_power,
-        sky=np.array(state.sky.radiance, dtype=np.float64),
+        mat_kind=materials.kind,
+        mat_param=materials.param,
+        light_kind=light.kind,
+        light_inst=light.inst,
+        light_tri=light.tri,
+        light_cdf=light.cdf,
+        light_total=light.total,
+        light_data=light.data,
+        light_env=light.env,
+        sky=light.sky,
     )
     stats = SceneStats(
         triangles=sum(meshes[key].triangles for key in set(k for _, k, _, _, _ in inst)),
         degenerate_triangles=sum(
             int(meshes[key].zero_area.sum()) for key in set(k for _, k, _, _, _ in inst)
         ),
-        emissive_triangles=int(lights.inst.shape[0]),
+        emissive_triangles=int(np.count_nonzero((lights.kind == 0) & (lights.weight > 0.0))),
         instances=len(inst),
         bounds_min=tuple(float(x) for x in lo.min(axis=0) + origin),
         bounds_max=tuple(float(x) for x in hi.max(axis=0) + origin),

@@ -36,3 +36,13 @@ MAX_PIXELS = 64 * 1024 * 1024
 MAX_SPP = 1 << 20
 MAX_DEPTH = 1024
 MAX_SPHERE_SUBDIVISIONS = 8
+
+# --- Debug outputs ---------------------------------------------------------------------------
+COST_HEATMAP_MAX = 65536
+"""Work per sample (node visits plus triangle tests) shown as the hottest colour of the cost
+heat map (tracer.heatmap); the scale is logarithmic from 0."""
+
+# --- Kernels ---------------------------------------------------------------------------------
+SPECIALISED_KERNELS = False
+"""Run the path kernel compiled for each effect plan (True) or the one with runtime flags
+(False). Measured in docs/effects.md (bench/effects.py)."""

@@ -32,7 +32,6 @@ from tracer.scene_model import (
     Node,
     NodeKey,
     SceneState,
-    Sky,
     frozen_array,
     make_mesh,
 )
@@ -64,10 +63,12 @@ class SceneData:
     camera: fmt.Camera
     render: fmt.RenderSettings
     material_names: list[str]
-    materials: list[fmt.DiffuseMaterial]
+    materials: list[fmt.Material]
     meshes: list[MeshData]
     source: str = ""
     notes: list[str] = field(default_factory=list)
+    sky: fmt.Sky = field(default_factory=fmt.ConstantSky)
+    lights: list[fmt.Light] = field(default_factory=list)
 
     def to_state(self) -> SceneState:
         meshes, nodes = {}, {}
@@ -84,6 +85,8 @@ class SceneData:
             nodes=nodes,
             camera=self.camera,
             render=self.render,
+            sky=self.sky,
+            lights=tuple(self.lights),
         )
 
 
@@ -231,8 +234,9 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
         nodes=nodes,
         camera=camera,
         render=scene.render,
-        sky=Sky(tuple(scene.sky.radiance)),
+        sky=scene.sky,
         animation=animation,
+        lights=tuple(scene.lights),
     )
 
 
@@ -449,7 +453,7 @@ def scene_from_mesh_file(path: Path) -> SceneState:
         camera=framing_camera(lo, hi),
         render=fmt.RenderSettings(),
     )
-    if not any(max(m.emission) > 0.0 for m in materials.values()):
+    if not any(max(getattr(m, "emission", (0.0,))) > 0.0 for m in materials.values()):
         state = with_default_light(state, lo, hi)
     return state
 
@@ -502,4 +506,5 @@ def with_default_light(state: SceneState, lo: np.ndarray, hi: np.ndarray) -> Sce
         render=state.render,
         sky=state.sky,
         animation=state.animation,
+        lights=state.lights,
     )

@@ -54,4 +54,4 @@ def configure() -> Path:
 def kernels_cached(directory: Path | None = None) -> bool:
     """Whether the path-tracing kernel is in the cache (so a render starts without compiling)."""
     directory = Path(os.environ.get("NUMBA_CACHE_DIR", "")) if directory is None else directory
-    return directory.is_dir() and any(directory.rglob("integrator.render_pixels-*.nbi"))
+    return directory.is_dir() and any(directory.rglob("integrator.trace_pixels*.nbi"))

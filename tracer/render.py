@@ -1,5 +1,10 @@
 """Public entry points: render a line range, or a whole image with progress.
 
+``render.integrator`` picks the kernel: ``path``, ``direct`` (a path of two vertices),
+``whitted`` and ``cost`` (the path kernel's work as a heat map, ``tracer.heatmap``) run
+``tracer.integrator`` under the effect plan (``tracer.effects``); ``ao``, ``albedo``,
+``normal`` and ``depth`` run ``tracer.surface_integrators``.
+
 ``render_lines`` is what a tracer runs for its share of a frame; ``render_image`` loops over
 line chunks in Python (one jitted call each), so progress and cancellation stay outside the
 kernel.
@@ -11,11 +16,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracer import config
+from tracer import config, effects
 from tracer import scene_format as fmt
 from tracer.camera import camera_array
 from tracer.compile import CompiledScene
-from tracer.integrator import render_pixels
+from tracer.effects import EffectPlan, effect_plan
+from tracer.heatmap import cost_heatmap
+from tracer.integrator import PATH, WHITTED, kernel_for, render_pixels_specialised
+from tracer.lights import light_arrays
+from tracer.scene_arrays import SceneArrays
+from tracer.surface_integrators import OUTPUTS, render_surface
 from tracer.threads import run_parts
 
 SAMPLES_PER_CALL = 1 << 18
@@ -36,6 +46,26 @@ class RenderedLines:
     seconds: float
 
 
+def arrays_for_plan(scene: CompiledScene, plan: EffectPlan) -> SceneArrays:
+    """The scene's arrays with only the lights the plan keeps (the same arrays when it keeps
+    every light the scene has)."""
+    kinds = plan.light_kinds()
+    present = {int(k) for k in scene.lights.kind[scene.lights.weight > 0.0]}
+    if present <= kinds:
+        return scene.arrays
+    light = light_arrays(scene.lights, kinds)
+    return scene.arrays._replace(
+        light_kind=light.kind,
+        light_inst=light.inst,
+        light_tri=light.tri,
+        light_cdf=light.cdf,
+        light_total=light.total,
+        light_data=light.data,
+        light_env=light.env,
+        sky=light.sky,
+    )
+
+
 def render_lines(
     scene: CompiledScene,
     y0: int,
@@ -45,12 +75,17 @@ def render_lines(
     frame: int = 0,
     sample_start: int = 0,
     threads: int | None = None,
+    plan: EffectPlan | None = None,
+    specialised: bool | None = None,
 ) -> RenderedLines:
     """Render lines [y0, y1) of a frame.
 
     Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
     sample ranges give independent estimates that average to the larger render. ``threads``
-    defaults to every CPU this process may use.
+    defaults to every CPU this process may use. ``plan`` is the effect plan (default: the one
+    ``tracer.effects.effect_plan`` makes of the scene and settings); ``specialised`` runs a
+    kernel compiled for that plan instead of the one with runtime flags (default:
+    ``config.SPECIALISED_KERNELS``).
     """
     camera = camera or scene.camera
     settings = settings or scene.render
@@ -58,6 +93,8 @@ def render_lines(
         raise ValueError(f"line range [{y0}, {y1}) is not inside [0, {camera.height})")
     if frame < 0 or sample_start < 0:
         raise ValueError("frame and sample_start must be non-negative")
+    if plan is None:
+        plan = effect_plan(scene, settings)
     cam = camera_array(
         np.asarray(camera.position) - scene.origin,
         np.asarray(camera.look_at) - scene.origin,
@@ -65,12 +102,44 @@ def render_lines(
         camera.vfov_deg,
         camera.width,
         camera.height,
+        camera.aperture_radius,
+        camera.focus_distance,
     )
     rgb = np.empty((y1 - y0, camera.width, 3), np.float32)
     cost = np.empty((y1 - y0, camera.width), np.int64)
     start = time.perf_counter()
+    if settings.integrator in OUTPUTS:
+        surface_args = (
+            scene.arrays,
+            cam,
+            camera.width,
+            camera.height,
+            y0,
+            y1,
+            sample_start,
+            settings.spp,
+            settings.seed,
+            frame,
+            OUTPUTS[settings.integrator],
+            settings.ao_samples,
+            settings.ao_distance * scene_diagonal(scene),
+        )
+
+        def surface_work(part: int, parts: int) -> None:
+            stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
+            stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
+            render_surface(*surface_args, part, parts, stack_node, stack_t, rgb, cost)
+
+        run_parts(surface_work, threads)
+        seconds = time.perf_counter() - start
+        return RenderedLines(y0, y1, rgb, cost.sum(axis=1), settings.spp, seconds)
+    max_depth = settings.max_depth
+    path = settings.integrator in ("path", "cost")
+    if settings.integrator == "direct" or (path and not plan.flags & effects.INDIRECT):
+        max_depth = min(max_depth, 2)
+    mode = WHITTED if settings.integrator == "whitted" else PATH
     args = (
-        scene.arrays,
+        arrays_for_plan(scene, plan),
         cam,
         camera.width,
         camera.height,
@@ -78,21 +147,34 @@ def render_lines(
         y1,
         sample_start,
         settings.spp,
-        settings.max_depth,
+        max_depth,
         settings.rr_depth,
         settings.seed,
         frame,
         1.0 - config.SHADOW_EPSILON,
+        mode,
+        plan.flags,
     )
+
+    if specialised is None:
+        specialised = config.SPECIALISED_KERNELS
+    kernel = render_pixels_specialised if specialised else kernel_for(plan.flags)
 
     def work(part: int, parts: int) -> None:
         stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
         stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
-        render_pixels(*args, part, parts, stack_node, stack_t, rgb, cost)
+        kernel(*args, part, parts, stack_node, stack_t, rgb, cost)
 
     run_parts(work, threads)
+    if settings.integrator == "cost":
+        rgb = cost_heatmap(cost, settings.spp)
     seconds = time.perf_counter() - start
     return RenderedLines(y0, y1, rgb, cost.sum(axis=1), settings.spp, seconds)
+
+
+def scene_diagonal(scene: CompiledScene) -> float:
+    """Length of the diagonal of the scene's bounding box (world units)."""
+    return float(np.linalg.norm(np.subtract(scene.stats.bounds_max, scene.stats.bounds_min)))
 
 
 def render_image(
@@ -104,10 +186,13 @@ def render_image(
     lines_per_call: int | None = None,
     threads: int | None = None,
     on_lines: Callable[[RenderedLines], None] | None = None,
+    plan: EffectPlan | None = None,
+    specialised: bool | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Render a whole frame; returns ``(rgb float32 (H, W, 3), cost int64 (H,))``.
 
-    ``on_lines`` is called after each chunk (for progress bars).
+    ``on_lines`` is called after each chunk (for progress bars); ``plan`` and ``specialised``
+    as for :func:`render_lines`.
     """
     camera = camera or scene.camera
     settings = settings or scene.render
@@ -117,9 +202,13 @@ def render_image(
         )
     image = np.empty((camera.height, camera.width, 3), np.float32)
     cost = np.empty(camera.height, np.int64)
+    if plan is None:
+        plan = effect_plan(scene, settings)
     for y0 in range(0, camera.height, lines_per_call):
         y1 = min(camera.height, y0 + lines_per_call)
-        part = render_lines(scene, y0, y1, camera, settings, frame, sample_start, threads)
+        part = render_lines(
+            scene, y0, y1, camera, settings, frame, sample_start, threads, plan, specialised
+        )
         image[y0:y1] = part.rgb
         cost[y0:y1] = part.cost
         if on_lines is not None:

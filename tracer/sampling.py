@@ -3,6 +3,7 @@
 import math
 
 from tracer.jit import jit
+from tracer.vecmath import coordinate_system, to_world
 
 INV_PI = 1.0 / math.pi
 
@@ -53,3 +54,37 @@ def power_heuristic(pa, pb):
     b2 = pb * pb
     total = a2 + b2
     return a2 / total if total > 0.0 else 0.0
+
+
+@jit
+def square_to_uniform_sphere(u1, u2):
+    """Uniformly distributed unit vector."""
+    z = 1.0 - 2.0 * u1
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = 2.0 * math.pi * u2
+    return (r * math.cos(phi), r * math.sin(phi), z)
+
+
+@jit
+def square_to_uniform_sphere_pdf():
+    """Solid-angle density of :func:`square_to_uniform_sphere`: 1 / (4 pi)."""
+    return 0.25 * INV_PI
+
+
+@jit
+def square_to_uniform_cone(u1, u2, one_minus_cos_max, axis):
+    """Unit vector uniformly distributed in the cone of half-angle theta_max about the unit
+    ``axis``, given ``1 - cos(theta_max)`` (kept apart to avoid cancellation for small cones)."""
+    a = u1 * one_minus_cos_max
+    cos_t = 1.0 - a
+    sin_t = math.sqrt(max(0.0, a * (2.0 - a)))
+    phi = 2.0 * math.pi * u2
+    local = (sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t)
+    s, t = coordinate_system(axis)
+    return to_world(local, s, t, axis)
+
+
+@jit
+def square_to_uniform_cone_pdf(one_minus_cos_max):
+    """Solid-angle density of :func:`square_to_uniform_cone`."""
+    return 1.0 / (2.0 * math.pi * one_minus_cos_max)

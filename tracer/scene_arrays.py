@@ -57,16 +57,27 @@ class SceneArrays(NamedTuple):
     """float32 (Q, 3)."""
     mat_two_sided: np.ndarray
     """bool (Q,)."""
+    mat_kind: np.ndarray
+    """int32 (Q,): BSDF kind (``tracer.bsdf`` constants)."""
+    mat_param: np.ndarray
+    """float64 (Q, ``bsdf.PARAMS``): BSDF parameters (``tracer.materials``)."""
+    light_kind: np.ndarray
+    """int32 (L,): kind of each light (``tracer.lights`` constants)."""
     light_inst: np.ndarray
-    """int32 (L,): instance of each emissive triangle."""
+    """int32 (L,): for an emissive triangle, its instance (else -1)."""
     light_tri: np.ndarray
-    """int32 (L,): its row in the instance's pool."""
+    """int32 (L,): for an emissive triangle, its row in the instance's pool; for a point, spot
+    or sun light, its row of ``light_data``; -1 for the sky."""
     light_cdf: np.ndarray
     """float64 (L,): selection CDF (by power), last entry exactly 1."""
     light_total: np.ndarray
     """float64 (1,): sum of the selection weights."""
+    light_data: np.ndarray
+    """float64 (P, ``lights.LIGHT_DATA``): point, spot and sun lights."""
+    light_env: np.ndarray
+    """int32 (E,): rows of ``light_data`` of suns that rays can see (a radius > 0)."""
     sky: np.ndarray
-    """float64 (3,): radiance from every direction nothing blocks."""
+    """float64 (``lights.SKY_SIZE``,): the sky (``tracer.lights``)."""
 
     @property
     def nbytes(self) -> int:
@@ -112,9 +123,14 @@ def borrow_scene(s):
         borrowed(s.mat_albedo),
         borrowed(s.mat_emission),
         borrowed(s.mat_two_sided),
+        borrowed(s.mat_kind),
+        borrowed(s.mat_param),
+        borrowed(s.light_kind),
         borrowed(s.light_inst),
         borrowed(s.light_tri),
         borrowed(s.light_cdf),
         borrowed(s.light_total),
+        borrowed(s.light_data),
+        borrowed(s.light_env),
         borrowed(s.sky),
     )

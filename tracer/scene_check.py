@@ -24,12 +24,15 @@ def check_state(state: SceneState) -> None:
         if not isinstance(name, str) or not isinstance(mesh, Mesh):
             raise SceneError(f"meshes[{name!r}] is not a named Mesh")
     for name, material in state.materials.items():
-        if not isinstance(name, str) or not isinstance(material, fmt.DiffuseMaterial):
+        if not isinstance(name, str) or not isinstance(material, fmt.MATERIAL_TYPES):
             raise SceneError(f"materials[{name!r}] is not a named material")
     if not isinstance(state.camera, fmt.Camera) or not isinstance(state.render, fmt.RenderSettings):
         raise SceneError("camera and render must be scene_format models")
-    if len(state.sky.radiance) != 3 or not all(_finite(c) and c >= 0 for c in state.sky.radiance):
-        raise SceneError(f"sky radiance must be three finite non-negative numbers, not {state.sky}")
+    if not isinstance(state.sky, fmt.ConstantSky | fmt.GradientSky):
+        raise SceneError(f"the sky must be a scene_format sky model, not {state.sky!r}")
+    if not all(isinstance(light, fmt.PointLight | fmt.SpotLight | fmt.SunLight) for light in
+               state.lights):  # fmt: skip
+        raise SceneError("lights must be scene_format light models")
     _check_nodes(state)
     if state.animation is not None:
         _check_animation(state.animation, state.nodes)

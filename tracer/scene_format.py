@@ -8,7 +8,16 @@ typo or a NaN is an error at load time rather than a surprise in the image.
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    field_validator,
+    model_validator,
+)
 
 from tracer import config
 
@@ -79,11 +88,9 @@ class Transform(Strict):
         return m
 
 
-class DiffuseMaterial(Strict):
-    """Lambertian reflector, optionally emissive (an area light)."""
+class _Opaque(Strict):
+    """What every opaque material has: emission (an area light) and sidedness."""
 
-    type: Literal["diffuse"] = "diffuse"
-    reflectance: Reflectance = (0.8, 0.8, 0.8)
     emission: Radiance = Field(
         default=(0.0, 0.0, 0.0), description="Emitted radiance, linear RGB (W sr^-1 m^-2)"
     )
@@ -94,8 +101,113 @@ class DiffuseMaterial(Strict):
     )
 
 
-Material = DiffuseMaterial
-"""Material kinds; more join as a discriminated union on ``type`` (docs/scene-format.md)."""
+class DiffuseMaterial(_Opaque):
+    """Lambertian reflector, optionally emissive (an area light)."""
+
+    type: Literal["diffuse"] = "diffuse"
+    reflectance: Reflectance = (0.8, 0.8, 0.8)
+
+
+class MirrorMaterial(_Opaque):
+    """Perfect specular reflector: every ray leaves in the mirror direction, scaled by
+    ``reflectance`` (no Fresnel term)."""
+
+    type: Literal["mirror"]
+    reflectance: Reflectance = (1.0, 1.0, 1.0)
+
+
+Ior = Annotated[float, Field(gt=0.0, le=10.0, allow_inf_nan=False)]
+
+
+class DielectricMaterial(Strict):
+    """Smooth glass-like boundary: Fresnel reflection and refraction, total internal reflection,
+    and Beer-Lambert absorption inside. Needs closed meshes whose triangles face outward (the
+    front side is outside); always two-sided, never emissive."""
+
+    type: Literal["dielectric"]
+    ior: Ior = Field(default=1.5, description="Index of refraction inside / outside")
+    absorption: Radiance = Field(
+        default=(0.0, 0.0, 0.0),
+        description="Absorption coefficient inside, per unit of scene length (Beer-Lambert)",
+    )
+
+
+Roughness = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+PositiveVec3 = tuple[Positive, Positive, Positive]
+
+
+class ConductorMaterial(_Opaque):
+    """Metal: GGX microfacet reflection with the conductor Fresnel term (visible-normal
+    sampling); roughness 0 is a smooth metal. The Fresnel term comes from ``eta`` and ``k``
+    (complex index of refraction per channel) or, if they are not given, from ``reflectance``
+    (the colour at normal incidence; docs/materials.md gives the mapping)."""
+
+    type: Literal["conductor"]
+    reflectance: Reflectance | None = Field(
+        default=None, description="Colour at normal incidence (default 0.9 grey)"
+    )
+    eta: PositiveVec3 | None = Field(default=None, description="Real part of the index")
+    k: tuple[NonNegative, NonNegative, NonNegative] | None = Field(
+        default=None, description="Imaginary part of the index (extinction)"
+    )
+    roughness: Roughness = Field(default=0.0, description="GGX alpha = roughness^2")
+
+    @model_validator(mode="after")
+    def _check(self) -> "ConductorMaterial":
+        if (self.eta is None) != (self.k is None):
+            raise ValueError("give eta and k together")
+        if self.eta is not None and self.reflectance is not None:
+            raise ValueError("give either reflectance or eta and k, not both")
+        return self
+
+
+class PlasticMaterial(_Opaque):
+    """Coated diffuse: a Lambertian base under a dielectric coat with a GGX rough surface
+    (a specular lobe with the dielectric Fresnel term, and the base's light scaled by the
+    coat's transmission; docs/materials.md)."""
+
+    type: Literal["plastic"]
+    reflectance: Reflectance = Field(default=(0.5, 0.5, 0.5), description="Base colour")
+    ior: Annotated[float, Field(gt=1.0, le=3.0, allow_inf_nan=False)] = Field(
+        default=1.5, description="Index of refraction of the coat"
+    )
+    roughness: Roughness = Field(
+        default=0.1, description="GGX alpha = roughness^2 (at least 0.001)"
+    )
+
+
+def _tag(default: str, *others: str):
+    """A discriminator that reads ``type`` and takes ``default`` when it is missing."""
+
+    def tag(value):
+        if isinstance(value, dict):
+            return value.get("type", default)
+        return getattr(value, "type", default)
+
+    known = ", ".join(repr(t) for t in (default, *others))
+    return Discriminator(
+        tag,
+        custom_error_type="invalid_type_tag",
+        custom_error_message=f"type must be one of {known} (default {default!r})",
+    )
+
+
+Material = Annotated[
+    Annotated[DiffuseMaterial, Tag("diffuse")]
+    | Annotated[MirrorMaterial, Tag("mirror")]
+    | Annotated[DielectricMaterial, Tag("dielectric")]
+    | Annotated[ConductorMaterial, Tag("conductor")]
+    | Annotated[PlasticMaterial, Tag("plastic")],
+    _tag("diffuse", "mirror", "dielectric", "conductor", "plastic"),
+]
+"""Material kinds, a union on ``type`` (``diffuse`` when it is missing); docs/materials.md."""
+MATERIAL_TYPES = (
+    DiffuseMaterial,
+    MirrorMaterial,
+    DielectricMaterial,
+    ConductorMaterial,
+    PlasticMaterial,
+)
 
 
 class MeshFile(Strict):
@@ -167,6 +279,14 @@ class Camera(Strict):
     vfov_deg: float = Field(default=40.0, gt=0.0, lt=180.0, description="Vertical field of view")
     width: int = Field(default=640, ge=1, le=config.MAX_IMAGE_SIDE)
     height: int = Field(default=480, ge=1, le=config.MAX_IMAGE_SIDE)
+    aperture_radius: NonNegative = Field(
+        default=0.0, description="Radius of the thin lens in scene units; 0 is a pinhole"
+    )
+    focus_distance: Positive | None = Field(
+        default=None,
+        description="Distance of the plane in focus along the view direction "
+        "(default: the distance from position to look_at)",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> "Camera":
@@ -178,6 +298,20 @@ class Camera(Strict):
         if not np.linalg.norm(np.cross(forward / np.linalg.norm(forward), self.up)) > 1e-9:
             raise ValueError("up must not be parallel to the viewing direction")
         return self
+
+
+INTEGRATORS = ("path", "direct", "whitted", "ao", "albedo", "normal", "depth", "cost")
+EffectName = Literal[
+    "area_lights",
+    "point_lights",
+    "sun",
+    "sky",
+    "shadows",
+    "indirect",
+    "refraction",
+    "absorption",
+]
+"""Effects a user may switch off (docs/effects.md)."""
 
 
 class RenderSettings(Strict):
@@ -195,12 +329,123 @@ class RenderSettings(Strict):
         description="Russian roulette starts at paths of this many vertices",
     )
     seed: int = Field(default=0, ge=0, lt=2**63)
+    integrator: Literal[INTEGRATORS] = Field(
+        default="path",
+        description="path (NEE + MIS + Russian roulette), direct (one bounce), whitted (direct "
+        "light and perfect specular recursion), ao (ambient occlusion), or a debug output: "
+        "albedo, normal, depth, cost",
+    )
+    effects: dict[EffectName, bool] = Field(
+        default_factory=dict,
+        description="Effects switched off on purpose (name -> false); docs/effects.md",
+    )
+    effect_plan: bool = Field(
+        default=True,
+        description="Simulate only the effects the scene needs; false runs every effect "
+        "(the same image in expectation, slower: for checking the plan)",
+    )
+    ao_samples: int = Field(
+        default=4, ge=1, le=1024, description="Ambient occlusion rays per camera sample"
+    )
+    ao_distance: Positive = Field(
+        default=0.1,
+        description="Ambient occlusion ray length, as a fraction of the scene's bounding-box "
+        "diagonal",
+    )
+
+    @field_validator("effects")
+    @classmethod
+    def _only_off(cls, value):
+        on = sorted(name for name, enabled in value.items() if enabled)
+        if on:
+            raise ValueError(
+                f"effects can only be switched off (false); {', '.join(on)} would be on anyway "
+                "where the scene needs it"
+            )
+        return value
 
 
-class SkySettings(Strict):
+class ConstantSky(Strict):
+    """The same radiance from every direction no surface blocks."""
+
+    type: Literal["constant"] = "constant"
     radiance: Radiance = Field(
         default=(0.0, 0.0, 0.0), description="Radiance from every direction nothing blocks"
     )
+
+
+class GradientSky(Strict):
+    """Radiance by elevation (+y is up): ``horizon`` at the horizon to ``zenith`` straight up,
+    linear in the sine of the elevation; ``ground`` from every direction below the horizon."""
+
+    type: Literal["gradient"]
+    zenith: Radiance
+    horizon: Radiance
+    ground: Radiance = (0.0, 0.0, 0.0)
+
+
+Sky = Annotated[
+    Annotated[ConstantSky, Tag("constant")] | Annotated[GradientSky, Tag("gradient")],
+    _tag("constant", "gradient"),
+]
+
+
+def _unit_direction(value):
+    v = np.asarray(value, dtype=np.float64)
+    norm = np.linalg.norm(v)
+    if not norm > 0.0 or not np.isfinite(norm):
+        raise ValueError("a direction must be a non-zero finite vector")
+    return tuple(float(c) for c in v / norm)
+
+
+Direction = Annotated[Vec3, AfterValidator(_unit_direction)]
+
+
+class PointLight(Strict):
+    """Light from one point, the same intensity in every direction."""
+
+    type: Literal["point"]
+    position: Vec3
+    intensity: Radiance = Field(description="Radiant intensity, linear RGB (W sr^-1)")
+
+
+class SpotLight(Strict):
+    """A point light restricted to a cone about the direction from ``position`` to
+    ``look_at``: full intensity out to ``cone_angle_deg - falloff_deg`` from the axis, then a
+    smooth falloff to zero at ``cone_angle_deg`` (pbrt-v4's smoothstep)."""
+
+    type: Literal["spot"]
+    position: Vec3
+    look_at: Vec3
+    intensity: Radiance = Field(description="Radiant intensity on the axis (W sr^-1)")
+    cone_angle_deg: float = Field(default=30.0, gt=0.0, le=90.0)
+    falloff_deg: float = Field(default=5.0, ge=0.0, le=90.0)
+
+    @model_validator(mode="after")
+    def _check(self) -> "SpotLight":
+        if not np.linalg.norm(np.subtract(self.look_at, self.position)) > 0.0:
+            raise ValueError("look_at must differ from position")
+        if self.falloff_deg > self.cone_angle_deg:
+            raise ValueError("falloff_deg must not exceed cone_angle_deg")
+        return self
+
+
+class SunLight(Strict):
+    """A distant disc: light from directions within ``angular_radius_deg`` of ``to_sun``,
+    with ``irradiance`` on a surface facing it. Radius 0 is a directional light (hard shadows);
+    a radius gives soft shadows, and rays can see the disc."""
+
+    type: Literal["sun"]
+    to_sun: Direction = Field(description="Direction from the scene toward the sun")
+    irradiance: Radiance = Field(
+        description="Irradiance on a surface facing the sun, linear RGB (W m^-2)"
+    )
+    angular_radius_deg: float = Field(
+        default=0.265, ge=0.0, le=45.0, description="Half-angle of the disc (the sun's: 0.265)"
+    )
+
+
+Light = Annotated[PointLight | SpotLight | SunLight, Field(discriminator="type")]
 
 
 MAX_FRAMES = 100_000
@@ -314,7 +559,11 @@ class SceneFile(Strict):
     format: Literal["tilerender/1"] = FORMAT
     camera: Camera = Camera()
     render: RenderSettings = RenderSettings()
-    sky: SkySettings = SkySettings()
+    sky: Sky = ConstantSky()
+    lights: list[Light] = Field(
+        default_factory=list,
+        description="Point, spot and sun lights (emitting surfaces are materials with emission)",
+    )
     materials: dict[str, Material] = Field(min_length=1)
     objects: list[SceneObject] = Field(min_length=1)
     animation: AnimationSettings | None = None

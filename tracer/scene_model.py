@@ -77,11 +77,9 @@ class Node:
     material: str | None = None
 
 
-@dataclass(frozen=True)
-class Sky:
-    """Radiance arriving from every direction no surface blocks (linear RGB; 0 = black)."""
-
-    radiance: tuple[float, float, float] = (0.0, 0.0, 0.0)
+def Sky(radiance=(0.0, 0.0, 0.0)) -> fmt.ConstantSky:
+    """A constant sky of ``radiance`` (linear RGB; 0 = black). States hold any ``fmt.Sky``."""
+    return fmt.ConstantSky(radiance=tuple(radiance))
 
 
 @dataclass(frozen=True)
@@ -120,12 +118,14 @@ class SceneState:
 
     version: int
     meshes: Mapping[str, Mesh]
-    materials: Mapping[str, fmt.DiffuseMaterial]
+    materials: Mapping[str, fmt.Material]
     nodes: Mapping[int, Node]
     camera: fmt.Camera
     render: fmt.RenderSettings
-    sky: Sky = Sky()
+    sky: fmt.Sky = field(default_factory=fmt.ConstantSky)
     animation: Animation | None = None
+    lights: tuple[fmt.Light, ...] = ()
+    """Point, spot and sun lights, in world space (emitting surfaces are materials)."""
 
     def world_transform(self, node_id: int) -> np.ndarray:
         """The node's transform to world space: its parents' transforms times its own."""

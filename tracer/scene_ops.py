@@ -169,6 +169,8 @@ class SetLight(_Op):
 
     def _apply(self, draft: "_Draft") -> None:
         material = draft.material(self.material)
+        if "emission" not in type(material).model_fields:
+            raise SceneError(f"material {self.material!r} is {material.type}, which cannot emit")
         changed = material.model_copy(update={"emission": self.emission})
         draft.table("materials")[self.material] = changed
 
@@ -184,13 +186,31 @@ class SetCamera(_Op):
 
 
 class SetSky(_Op):
-    """Set the sky's radiance (linear RGB; 0 = black)."""
+    """Set the sky: ``radiance`` for a constant sky (linear RGB; 0 = black), or any ``sky``
+    model of the scene format (one of the two)."""
 
     op: Literal["set_sky"] = "set_sky"
-    radiance: fmt.Radiance
+    radiance: fmt.Radiance | None = None
+    sky: fmt.Sky | None = None
+
+    @pydantic.model_validator(mode="after")
+    def _one(self) -> "SetSky":
+        if (self.radiance is None) == (self.sky is None):
+            raise ValueError("give either radiance or sky")
+        return self
 
     def _apply(self, draft: "_Draft") -> None:
-        draft.sky = Sky(self.radiance)
+        draft.sky = Sky(self.radiance) if self.sky is None else self.sky
+
+
+class SetLights(_Op):
+    """Replace the point, spot and sun lights (world space)."""
+
+    op: Literal["set_lights"] = "set_lights"
+    lights: list[fmt.Light]
+
+    def _apply(self, draft: "_Draft") -> None:
+        draft.lights = tuple(self.lights)
 
 
 class SetRender(_Op):
@@ -325,6 +345,7 @@ OP_TYPES: tuple[type[_Op], ...] = (
     SetLight,
     SetCamera,
     SetSky,
+    SetLights,
     SetRender,
     AddMesh,
     RemoveMesh,
@@ -341,6 +362,7 @@ Op = Annotated[
     | SetLight
     | SetCamera
     | SetSky
+    | SetLights
     | SetRender
     | AddMesh
     | RemoveMesh
@@ -370,9 +392,10 @@ class _Draft:
     def __init__(self, state: SceneState) -> None:
         self._state = state
         self.meshes: Mapping[str, Mesh] = state.meshes
-        self.materials: Mapping[str, fmt.DiffuseMaterial] = state.materials
+        self.materials: Mapping[str, fmt.Material] = state.materials
         self.nodes: Mapping[int, Node] = state.nodes
         self.camera, self.render, self.sky = state.camera, state.render, state.sky
+        self.lights = state.lights
         self.animation: Animation | None = state.animation
         self._copied: set[str] = set()
         self._names: dict[str, list[int]] | None = None
@@ -407,7 +430,7 @@ class _Draft:
             raise SceneError(f"mesh {name!r} does not exist")
         return self.meshes[name]
 
-    def material(self, name: str) -> fmt.DiffuseMaterial:
+    def material(self, name: str) -> fmt.Material:
         if name not in self.materials:
             raise SceneError(f"material {name!r} does not exist")
         return self.materials[name]
@@ -453,6 +476,7 @@ class _Draft:
             render=self.render,
             sky=self.sky,
             animation=self.animation,
+            lights=self.lights,
         )
 
 

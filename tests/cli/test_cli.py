@@ -160,6 +160,8 @@ def test_render_png_and_exr(capsys, tmp_path, tiny_scene_file, suffix):
         with Image.open(out) as image:
             metadata = json.loads(image.text["tilerender"])
         assert metadata["camera"]["width"] == 9 and metadata["render"]["spp"] == 1
+        assert "area_lights" in metadata["effect_plan"]["effects"]
+        assert "sky" in metadata["effect_plan"]["skipped"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out" + suffix, "scene.json"]
 
 
@@ -208,6 +210,45 @@ def test_info_prints_json(capsys, tiny_scene_file):
     assert report["bounds"]["min"] == list(scene.stats.bounds_min)
 
 
+def test_plan_prints_the_effect_plan(capsys, tmp_path):
+    """`plan` prints the effects a render runs and skips, each with its rule; options change
+    the plan as they would change a render."""
+    code, out, err = run(capsys, "plan", ROOT / "scenes" / "cornell-box" / "scene.json")
+    assert code == 0, err
+    report = json.loads(out)
+    assert report["integrator"] == "path"
+    assert {"area_lights", "light_samples", "shadows", "indirect"} <= set(report["effects"])
+    assert {"sky", "sun", "refraction", "specular", "glossy"} <= set(report["skipped"])
+    assert report["reasons"]["refraction"] == "no dielectric"
+    code, out, err = run(
+        capsys, "plan", ROOT / "scenes" / "cornell-box" / "scene.json", "--integrator", "ao"
+    )
+    assert code == 0, err
+    assert "light_samples" in json.loads(out)["skipped"]
+    switched = tmp_path / "scene.json"
+    write_json(switched, tiny_scene(render={"effects": {"shadows": False}}))
+    code, out, err = run(capsys, "plan", switched)
+    assert json.loads(out)["reasons"]["shadows"] == "switched off in render.effects"
+
+
+def test_render_integrator_option(capsys, tmp_path, tiny_scene_file):
+    """--integrator reaches the renderer: the albedo output is the library's."""
+    out = tmp_path / "albedo.npy"
+    code, _, err = run(
+        capsys, "render", tiny_scene_file, "-o", out, "--integrator", "albedo", "--spp", 1, "-q"
+    )
+    assert code == 0, err
+    scene = compile_scene(load_scene(tiny_scene_file))
+    expected, _ = render_image(scene, settings=override(scene.render, spp=1, integrator="albedo"))
+    assert np.array_equal(read_image(out), expected)
+
+
+def test_cli_integrators_are_the_formats():
+    from tracer.scene_format import INTEGRATORS
+
+    assert cli_main.INTEGRATORS == INTEGRATORS
+
+
 def test_info_counts_dropped_triangles(capsys, tmp_path):
     """`info` reports zero-area triangles the compiler dropped."""
     (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n")
@@ -225,7 +266,7 @@ def test_help(capsys, argv):
     out = capsys.readouterr().out
     assert "usage: tilerender" in out
     if argv == ["--help"]:
-        assert all(word in out for word in ("render", "samples", "info", "schema"))
+        assert all(word in out for word in ("render", "samples", "info", "plan", "schema"))
     if argv[0] == "render":
         assert all(f"--{o}" in out for o in ("spp", "width", "height", "seed", "max-depth"))
         assert all(f"--{o}" in out for o in ("tracers", "balancer", "ray-address", "frames"))
@@ -248,7 +289,7 @@ BAD_INPUT = {
     # name: (argv with {tmp} and {scene} placeholders, words the error line must contain)
     "missing scene": (["render", "{tmp}/nope.json", "-o", OUT], ["nope.json"]),
     "bad json": (["render", "{tmp}/bad.json", "-o", OUT], ["not valid JSON"]),
-    "unknown key": (["render", "{tmp}/unknown.json", "-o", OUT], ["lights", "unknown key"]),
+    "unknown key": (["render", "{tmp}/unknown.json", "-o", OUT], ["lamps", "unknown key"]),
     "spp 0": (["render", "{scene}", "-o", OUT, "--spp", "0"], ["--spp", "at least 1"]),
     "spp abc": (["render", "{scene}", "-o", OUT, "--spp", "abc"], ["--spp", "'abc'"]),
     "spp negative": (["render", "{scene}", "-o", OUT, "--spp", "-3"], ["--spp"]),
@@ -304,7 +345,7 @@ BAD_INPUT = {
 def bad_files(tmp_path):
     """The broken inputs BAD_INPUT refers to, in tmp_path."""
     (tmp_path / "bad.json").write_text('{"camera": ')
-    write_json(tmp_path / "unknown.json", tiny_scene(lights=[]))
+    write_json(tmp_path / "unknown.json", tiny_scene(lamps=[]))
     (tmp_path / "inner").mkdir()
     data = tiny_scene()
     data["objects"][1]["shape"] = "../stolen.obj"

@@ -168,7 +168,7 @@ def test_deeply_nested_json(tmp_path):
 @pytest.mark.parametrize(
     "where, key",
     [
-        ([], "lights"),
+        ([], "lamps"),
         (["camera"], "fov"),
         (["render"], "samples"),
         (["materials", "grey"], "colour"),
@@ -196,7 +196,7 @@ def test_unknown_keys(tmp_path, where, key):
         ({"camera": {"position": [0, 1]}}, "camera.position"),
         ({"render": {"spp": 2.5}}, "render.spp"),
         ({"render": {"seed": "seven"}}, "render.seed"),
-        ({"materials": {"grey": {"reflectance": "grey"}}}, "materials.grey.reflectance"),
+        ({"materials": {"grey": {"reflectance": "grey"}}}, "materials.grey.diffuse.reflectance"),
         ({"materials": []}, "materials"),
         ({"objects": {"a": 1}}, "objects"),
     ],

@@ -217,7 +217,7 @@ def test_undefined_material_is_refused():
         ({"materials": {}}, "at least 1"),
         ({"objects": []}, "at least 1"),
         ({"format": "tilerender/2"}, "tilerender/1"),
-        ({"lights": []}, "Extra inputs"),
+        ({"lamps": []}, "Extra inputs"),
     ],
 )
 def test_bad_top_level(change, message):
@@ -227,8 +227,14 @@ def test_bad_top_level(change, message):
 
 
 def test_unknown_nested_keys_are_refused():
-    """A misspelled key at any depth is an error, located by its path."""
-    for path in (["camera"], ["render"], ["materials", "grey"], ["objects", 1, "transform"]):
+    """A misspelled key at any depth is an error, located by its path (which names the kind of
+    a material, as it does a shape's)."""
+    for path, where in (
+        (["camera"], ["camera"]),
+        (["render"], ["render"]),
+        (["materials", "grey"], ["materials", "grey", "diffuse"]),
+        (["objects", 1, "transform"], ["objects", 1, "transform"]),
+    ):
         data = tiny_scene()
         node = data
         for key in path:
@@ -237,7 +243,7 @@ def test_unknown_nested_keys_are_refused():
         with pytest.raises(pydantic.ValidationError) as info:
             fmt.SceneFile.model_validate(data)
         locations = [e["loc"] for e in info.value.errors()]
-        assert (*path, "typo") in locations
+        assert (*where, "typo") in locations
 
 
 def test_override():

@@ -1,0 +1,236 @@
+"""Integrators: ``direct`` is the path of two vertices; NEE-only (Whitted), BSDF-only and MIS
+estimate the same direct light; Russian roulette leaves the expected image unchanged; Whitted
+recursion through mirrors and glass; ambient occlusion against an analytic value; the debug
+outputs (albedo, normal, depth, cost)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from tests.helpers import CORNELL, compile_dict, mean_and_error, render_passes
+from tests.stats import pass_statistics, welch_pixel_test
+from tracer import effects, integrator, surface_integrators
+from tracer.compile import compile_scene
+from tracer.effects import EffectPlan, effect_plan
+from tracer.heatmap import cost_heatmap
+from tracer.loader import load_scene
+from tracer.render import render_image
+from tracer.scene_format import override
+
+
+@pytest.fixture(scope="module")
+def cornell():
+    scene = compile_scene(load_scene(CORNELL))
+    return scene, override(scene.camera, width=32, height=32)
+
+
+def passes_with_plan(scene, camera, settings, plan, passes, spp):
+    """Independent passes rendered under an explicit effect plan, (K, H, W, 3)."""
+    from tracer.render import render_lines
+
+    settings = override(settings, spp=spp)
+    return np.stack(
+        [
+            render_lines(
+                scene, 0, camera.height, camera, settings, sample_start=k * spp, plan=plan
+            ).rgb
+            for k in range(passes)
+        ]
+    ).astype(np.float64)
+
+
+def agree(a: np.ndarray, b: np.ndarray) -> None:
+    """Two sets of passes estimate the same image: image means within 4 combined standard
+    errors, and the Sidak-corrected per-pixel Welch test accepts >= 99% of pixels."""
+    mean_a, se_a = mean_and_error(a)
+    mean_b, se_b = mean_and_error(b)
+    z = (mean_a - mean_b) / np.sqrt(se_a**2 + se_b**2)
+    assert np.all(np.abs(z) < 4.0), z
+    result = welch_pixel_test(*pass_statistics(a), *pass_statistics(b))
+    assert result.accepted_fraction >= 0.99
+
+
+def test_direct_is_the_two_vertex_path(cornell):
+    scene, camera = cornell
+    settings = override(scene.render, spp=4)
+    direct, _ = render_image(scene, camera, override(settings, integrator="direct"))
+    path, _ = render_image(scene, camera, override(settings, max_depth=2))
+    assert direct.tobytes() == path.tobytes()
+
+
+def test_nee_bsdf_and_mis_agree(cornell):
+    """Direct light three ways: light samples only (the Whitted kernel on Lambertian surfaces),
+    BSDF samples only (the path kernel without light samples), and both with MIS (direct).
+    BSDF samples rarely find the small light, so their passes take 256 samples per pixel: with
+    fewer, pass means are too skewed for the per-pixel t-test."""
+    scene, camera = cornell
+    settings = override(scene.render, max_depth=2, seed=2)
+    # Different seeds: the tests assume independent estimates.
+    mis = render_passes(scene, 12, 8, camera, max_depth=2)
+    nee = render_passes(scene, 12, 8, camera, integrator="whitted", seed=1)
+    plan = effect_plan(scene, settings)
+    bsdf_only = EffectPlan(plan.flags & ~(effects.LIGHT_SAMPLES | effects.SHADOWS), {})
+    bsdf = passes_with_plan(scene, camera, settings, bsdf_only, 12, 256)
+    agree(mis, nee)
+    agree(mis, bsdf)
+
+
+def test_a_missing_strategy_is_caught(cornell):
+    """Negative control: BSDF sampling without its emission hits (light samples switched off,
+    and the emission of hit lights only seen directly) loses the direct light and is rejected."""
+    scene, camera = cornell
+    mis = render_passes(scene, 6, 8, camera, max_depth=2, seed=1)
+    plan = EffectPlan(effect_plan(scene, scene.render).flags & ~effects.LIGHT_SAMPLES, {})
+    broken = passes_with_plan(scene, camera, override(scene.render, max_depth=1), plan, 6, 8)
+    with pytest.raises(AssertionError):
+        agree(mis, broken)
+
+
+def test_russian_roulette_is_unbiased(cornell):
+    """Roulette from the first bounce (rr_depth 1) and none at all (rr_depth = max_depth) give
+    the same expected image."""
+    scene, camera = cornell
+    early = render_passes(scene, 12, 8, camera, rr_depth=1)
+    none = render_passes(scene, 12, 8, camera, rr_depth=8, seed=1)
+    agree(early, none)
+
+
+def furnace(material, integrator_name):
+    return compile_dict(
+        {
+            "camera": {
+                "position": [0, 0.5, 4],
+                "look_at": [0, 0, 0],
+                "vfov_deg": 36,
+                "width": 16,
+                "height": 16,
+            },
+            "render": {"spp": 4, "max_depth": 64, "rr_depth": 64, "integrator": integrator_name},
+            "sky": {"radiance": [1.0, 1.0, 1.0]},
+            "materials": {"m": material},
+            "objects": [{"shape": {"type": "sphere", "subdivisions": 3}, "material": "m"}],
+        }
+    )
+
+
+def test_whitted_follows_delta_lobes():
+    """Whitted recursion: a mirror and a glass sphere under a white sky are invisible (every
+    path follows delta lobes out to the sky)."""
+    mirror = render_passes(furnace({"type": "mirror"}, "whitted"), 1, 4)
+    assert np.all(mirror == 1.0)
+    glass = render_passes(furnace({"type": "dielectric"}, "whitted"), 1, 8)
+    assert abs(glass.mean() - 1.0) < 5e-3
+
+
+def test_whitted_has_no_indirect_light():
+    """A white diffuse sphere under a white sky: Whitted shows its direct light (1, the sky is
+    all direct for a convex object) and stops there: the same as the path tracer, but a
+    concave scene would differ (checked below on the Cornell box)."""
+    mean, se = mean_and_error(render_passes(furnace({"reflectance": [1, 1, 1]}, "whitted"), 8, 8))
+    assert np.all(np.abs(mean - 1.0) < 4 * se), (mean, se)
+
+
+def test_whitted_is_darker_than_path_in_the_cornell_box(cornell):
+    scene, camera = cornell
+    whitted = render_passes(scene, 4, 8, camera, integrator="whitted").mean()
+    path = render_passes(scene, 4, 8, camera).mean()
+    assert whitted < 0.8 * path
+
+
+def two_planes(ao_distance):
+    """A floor and a ceiling one unit above it, both 40 wide, seen from between them."""
+    plane = {"type": "plane", "size": 40.0}
+    return compile_dict(
+        {
+            "camera": {
+                "position": [0, 0.5, 0],
+                "look_at": [0, 0, 0],
+                "up": [0, 0, -1],
+                "vfov_deg": 10,
+                "width": 8,
+                "height": 8,
+            },
+            "render": {
+                "spp": 16,
+                "integrator": "ao",
+                "ao_samples": 8,
+                "ao_distance": ao_distance,
+            },
+            "materials": {"grey": {}},
+            "objects": [
+                {"shape": plane, "material": "grey"},
+                {
+                    "shape": plane,
+                    "material": "grey",
+                    "transform": {"translate": [0, 1, 0], "rotate": [180, 0, 0]},
+                },
+            ],
+        }
+    )
+
+
+def test_ambient_occlusion_between_two_planes():
+    """Under a parallel plane at height h, occlusion rays of length L escape when
+    cos(theta) < h / L: with cosine-weighted directions, a fraction (h / L)^2."""
+    diagonal = math.sqrt(40.0**2 + 1.0 + 40.0**2)
+    for length in (2.0, 4.0):
+        scene = two_planes(length / diagonal)
+        mean, se = mean_and_error(render_passes(scene, 8, 16))
+        expected = (1.0 / length) ** 2
+        assert np.all(np.abs(mean - expected) < 4 * se + 1e-9), (length, mean, se)
+    open_sky = two_planes(0.5 / diagonal)  # rays shorter than the gap never hit the ceiling
+    assert np.all(render_passes(open_sky, 1, 4) == 1.0)
+
+
+def test_debug_outputs():
+    """Albedo is the reflectance exactly, the normal facing the camera maps to 0.5 n + 0.5,
+    depth is the distance along the camera ray, misses are 0."""
+    data = {
+        "camera": {
+            "position": [0, 3, 0],
+            "look_at": [0, 0, 0],
+            "up": [0, 0, -1],
+            "vfov_deg": 2.0,
+            "width": 4,
+            "height": 4,
+        },
+        "render": {"spp": 4},
+        "materials": {
+            "m": {"reflectance": [0.2, 0.4, 0.6]},
+            "glass": {"type": "dielectric"},
+        },
+        "objects": [{"shape": {"type": "plane", "size": 10.0}, "material": "m"}],
+    }
+    albedo = render_passes(compile_dict(data), 1, 4, integrator="albedo")[0]
+    np.testing.assert_allclose(albedo, np.broadcast_to([0.2, 0.4, 0.6], albedo.shape), rtol=1e-6)
+    normal = render_passes(compile_dict(data), 1, 4, integrator="normal")[0]
+    np.testing.assert_allclose(normal, np.broadcast_to([0.5, 1.0, 0.5], normal.shape), atol=1e-7)
+    depth = render_passes(compile_dict(data), 1, 16, integrator="depth")[0]
+    assert np.all(np.abs(depth - 3.0) < 3.0 * (1.0 / math.cos(math.radians(1.5)) - 1.0) + 1e-6)
+    glass = {**data, "objects": [{**data["objects"][0], "material": "glass"}]}
+    white = render_passes(compile_dict(glass), 1, 1, integrator="albedo")[0]
+    assert np.all(white == 1.0)
+    away = {**data, "camera": {**data["camera"], "look_at": [0, 6, 0]}}
+    assert np.all(render_passes(compile_dict(away), 1, 1, integrator="depth") == 0.0)
+
+
+def test_cost_heat_map(cornell):
+    """The cost output is the path kernel's per-pixel work through a fixed ramp: the same for
+    any split of the frame, blue for cheap pixels, toward red for expensive ones."""
+    scene, camera = cornell
+    settings = override(scene.render, spp=2)
+    from tracer.render import render_lines
+
+    lines = render_lines(scene, 0, camera.height, camera, override(settings, integrator="cost"))
+    whole, _ = render_image(scene, camera, override(settings, integrator="cost"))
+    assert lines.rgb.tobytes() == whole.tobytes()
+    assert np.all((whole >= 0.0) & (whole <= 1.0))
+    ramp = cost_heatmap(np.array([0, 10, 1000, 10**9]), 1)
+    np.testing.assert_array_equal(ramp[0], [0, 0, 1])
+    np.testing.assert_array_equal(ramp[-1], [1, 0, 0])
+    assert ramp[1][1] > 0.0 and ramp[2][0] > ramp[1][0]
+
+
+def test_lens_dimension_is_shared():
+    assert surface_integrators.LENS_DIM == integrator.LENS_DIM

@@ -1,0 +1,127 @@
+"""Integrators that look only at the surface a camera ray hits: ambient occlusion and the debug
+outputs (albedo, normal, depth).
+
+Ambient occlusion follows Demoullin (thesis ch. 3): from the first hit, ``ao_samples`` rays in
+cosine-weighted directions about the normal facing the camera, each an any-hit query of length
+``ao_distance`` (a fraction of the scene's bounding-box diagonal); the value is the fraction
+that escape, an estimate of ``1/pi * integral V(w) cos dw``. The debug outputs are the first
+hit's reflectance colour (white for dielectrics), its normal facing the camera mapped to
+``0.5 n + 0.5``, and the distance along the camera ray. Rays that hit nothing give 0. Every
+output averages its camera samples like the path tracer (box filter, same jitter and lens).
+
+Random dimensions: 0 the pixel jitter, ``integrator.LENS_DIM`` the lens, ``1 + i`` the i-th
+occlusion ray.
+"""
+
+import numpy as np
+
+from tracer.borrow import borrowed
+from tracer.bsdf import bsdf_albedo
+from tracer.camera import LENS_RADIUS, primary_ray, thin_lens_ray
+from tracer.jit import jit
+from tracer.rng import pixel_key, sample_key, uniform2
+from tracer.sampling import square_to_cosine_hemisphere
+from tracer.scene_arrays import borrow_scene
+from tracer.scene_intersect import (
+    material_of,
+    offset_distance,
+    scene_closest,
+    scene_occluded,
+    spawn,
+    surface,
+)
+from tracer.vecmath import coordinate_system, dot, to_world
+
+AO = 0
+ALBEDO = 1
+NORMAL = 2
+DEPTH = 3
+OUTPUTS = {"ao": AO, "albedo": ALBEDO, "normal": NORMAL, "depth": DEPTH}
+
+PIXEL_BLOCK = 32
+LENS_DIM = 8
+"""The lens's dimension, as in ``tracer.integrator`` (kept equal by a test)."""
+
+
+@jit
+def render_surface(
+    scene,
+    camera,
+    width,
+    height,
+    y0,
+    y1,
+    sample_start,
+    spp,
+    seed,
+    frame,
+    output,
+    ao_samples,
+    ao_length,
+    first,
+    stride,
+    stack_node,
+    stack_t,
+    out_rgb,
+    out_cost,
+):
+    """Render ``output`` (``AO``, ``ALBEDO``, ``NORMAL`` or ``DEPTH``) for pixel blocks
+    ``first, first + stride, ...`` of lines [y0, y1); arguments as the path kernel's
+    (``integrator.path_kernel``), plus ``ao_samples`` occlusion rays per camera sample of
+    length ``ao_length`` (render-space
+    units)."""
+    s = borrow_scene(scene)
+    camera = borrowed(camera)
+    stack_node = borrowed(stack_node)
+    stack_t = borrowed(stack_t)
+    n_pix = (y1 - y0) * width
+    for block in range(first, (n_pix + PIXEL_BLOCK - 1) // PIXEL_BLOCK, stride):
+        for i in range(block * PIXEL_BLOCK, min(n_pix, (block + 1) * PIXEL_BLOCK)):
+            row = i // width
+            x = i - row * width
+            y = y0 + row
+            p_key = pixel_key(seed, frame, y * width + x)
+            acc = (0.0, 0.0, 0.0)
+            cost = 0
+            for sample in range(sample_start, sample_start + spp):
+                key = sample_key(p_key, sample)
+                jx, jy = uniform2(key, 0)
+                if camera[LENS_RADIUS] > 0.0:
+                    l1, l2 = uniform2(key, LENS_DIM)
+                    o, d = thin_lens_ray(camera, width, height, x + jx, y + jy, l1, l2)
+                else:
+                    o, d = primary_ray(camera, width, height, x + jx, y + jy)
+                k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
+                cost += c
+                if k < 0:
+                    continue
+                mat = material_of(s, k, j)
+                p_o, err_o, n_o, _, ng = surface(s, k, j, b0, b1, b2)
+                n = ng if dot(ng, d) < 0.0 else (-ng[0], -ng[1], -ng[2])
+                if output == DEPTH:
+                    value = (t, t, t)
+                elif output == NORMAL:
+                    value = (0.5 * n[0] + 0.5, 0.5 * n[1] + 0.5, 0.5 * n[2] + 0.5)
+                elif output == ALBEDO:
+                    albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
+                              np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
+                    value = bsdf_albedo(s.mat_kind[mat], albedo)
+                else:
+                    dist = offset_distance(s, k, p_o, err_o, n_o)
+                    u_s, u_t = coordinate_system(n)
+                    open_count = 0
+                    for r in range(ao_samples):
+                        u1, u2 = uniform2(key, 1 + r)
+                        w = to_world(square_to_cosine_hemisphere(u1, u2), u_s, u_t, n)
+                        origin = spawn(s, k, p_o, n_o, dist, ng, w)
+                        blocked, c = scene_occluded(s, origin, w, ao_length, stack_node)
+                        cost += c
+                        if not blocked:
+                            open_count += 1
+                    ao = open_count / ao_samples
+                    value = (ao, ao, ao)
+                acc = (acc[0] + value[0], acc[1] + value[1], acc[2] + value[2])
+            out_rgb[row, x, 0] = acc[0] / spp
+            out_rgb[row, x, 1] = acc[1] / spp
+            out_rgb[row, x, 2] = acc[2] / spp
+            out_cost[row, x] = cost
