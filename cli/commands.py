@@ -226,6 +226,7 @@ def frame_metadata(done, args: argparse.Namespace, tracers: int) -> dict:
         "version": tracer_version(),
         "camera": done.camera.model_dump(),
         "render": done.settings.model_dump(),
+        "effect_plan": done.effects,
         "seconds": round(done.wall_seconds, 3),
         "frame": done.frame,
         "scene_version": done.version,

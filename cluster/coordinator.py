@@ -141,6 +141,8 @@ class Frame:
     reassigned: int = 0
     duplicates: int = 0
     resyncs: int = 0
+    effects: dict | None = None
+    """The effect plan the frame was rendered with (every tracer derives the same one)."""
 
 
 @dataclass(eq=False)
@@ -822,6 +824,7 @@ class Coordinator:
             reassigned=job.reassigned,
             duplicates=job.duplicates,
             resyncs=job.resyncs,
+            effects=next((r.effects for r in job.primary.values()), None),
         )
         self._observe(job, now)
         job.result = frame

@@ -25,6 +25,7 @@ import numpy as np
 
 from tracer import numba_cache
 from tracer import scene_format as fmt
+from tracer.effects import effect_plan
 from tracer.errors import SceneError
 from tracer.query import SceneHits
 from tracer.render import render_lines
@@ -53,6 +54,8 @@ class LinesResult:
     node: str
     incarnation: str
     """Changes when Ray restarts the actor (a new process with an empty replica)."""
+    effects: dict | None = None
+    """The effect plan the lines were rendered with (``tracer.effects.EffectPlan.to_json``)."""
 
 
 @dataclass(frozen=True)
@@ -173,8 +176,10 @@ class Tracer:
         scene = self.replica.at(version)
         if self.delay > 0.0:
             time.sleep(self.delay)
+        settings = settings or scene.render
+        plan = effect_plan(scene, settings)
         lines = render_lines(
-            scene, y0, y1, camera, settings, frame, sample_start, threads=self.threads
+            scene, y0, y1, camera, settings, frame, sample_start, threads=self.threads, plan=plan
         )
         return LinesResult(
             tracer=self.id,
@@ -189,6 +194,7 @@ class Tracer:
             pid=self.pid,
             node=self.node,
             incarnation=self.incarnation,
+            effects=plan.to_json(),
         )
 
     def warm_up(self) -> dict:
@@ -196,15 +202,17 @@ class Tracer:
         numba's on-disk cache when another process compiled it) before the first frame.
         Returns the seconds taken, numba's cache hits and misses for the kernel, the cache
         directory, and this process's pid and node."""
-        from tracer.integrator import render_pixels
+        from tracer.integrator import kernel_for
 
         if self.replica is None:
             raise SceneError("warm_up needs a scene: send a snapshot first")
         scene = self.replica.current
         start = time.perf_counter()
         tiny = fmt.override(scene.camera, width=1, height=1)
-        render_lines(scene, 0, 1, tiny, fmt.override(scene.render, spp=1), threads=1)
-        stats = render_pixels.stats
+        settings = fmt.override(scene.render, spp=1)
+        plan = effect_plan(scene, settings)
+        render_lines(scene, 0, 1, tiny, settings, threads=1, plan=plan)
+        stats = kernel_for(plan.flags).stats
         return {
             "seconds": time.perf_counter() - start,
             "cache_hits": sum(stats.cache_hits.values()),
