@@ -37,6 +37,7 @@ import gc
 import io
 import logging
 import os
+import signal
 import threading
 import time
 import traceback
@@ -471,6 +472,7 @@ class RenderService:
         self.metrics = metrics
         self.session_factory = session_factory or session_factory_for(settings)
         self.loop: asyncio.AbstractEventLoop | None = None
+        self._sigterm = None
         self.coordinator = None
         self.connection = None
         self.ready = False
@@ -498,6 +500,9 @@ class RenderService:
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self.loop = loop
+        # Ray's core installs its own SIGTERM handler when it starts (it prints a stack and
+        # exits at once); the server's handler (a graceful shutdown) is put back afterwards.
+        self._sigterm = signal.getsignal(signal.SIGTERM)
         self._recover_jobs()
         self._thread = threading.Thread(target=self._main, name="tilerender-render", daemon=True)
         self._thread.start()
@@ -585,6 +590,8 @@ class RenderService:
 
         num_cpus = self.settings.num_cpus if self.settings.ray_address is None else None
         self.connection = connect(self.settings.ray_address, num_cpus=num_cpus)
+        if callable(self._sigterm) and self.loop is not None:
+            self.loop.call_soon_threadsafe(signal.signal, signal.SIGTERM, self._sigterm)
         import ray
 
         self._node = ray.get_runtime_context().get_node_id()
