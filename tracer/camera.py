@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from tracer.jit import jit
+from tracer.jit import jit, jit_inline
+from tracer.rng import uniform2
 from tracer.sampling import square_to_uniform_disk_concentric
 
 CAMERA_SIZE = 16
@@ -20,6 +21,10 @@ CAMERA_SIZE = 16
 lens radius, focus distance."""
 LENS_RADIUS = 14
 FOCUS_DISTANCE = 15
+LENS_DIM = 8
+"""Random dimension of a camera sample's lens point (two uniforms; dimension 0 jitters the
+pixel). In the path tracer's layout (``tracer.integrator``) it is the last spare dimension of
+the first vertex."""
 
 
 def camera_array(
@@ -90,3 +95,14 @@ def thin_lens_ray(camera, width, height, fx, fy, u1, u2):
     dz = fz_ - oz
     inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
     return (ox, oy, oz), (dx * inv, dy * inv, dz * inv)
+
+
+@jit_inline
+def camera_sample_ray(camera, width, height, x, y, key):
+    """The primary ray of one camera sample of pixel (x, y): the film position jittered by
+    dimension 0 of ``key``, the lens point (when the camera has an aperture) by ``LENS_DIM``."""
+    jx, jy = uniform2(key, 0)
+    if camera[LENS_RADIUS] > 0.0:
+        l1, l2 = uniform2(key, LENS_DIM)
+        return thin_lens_ray(camera, width, height, x + jx, y + jy, l1, l2)
+    return primary_ray(camera, width, height, x + jx, y + jy)

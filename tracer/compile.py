@@ -30,7 +30,7 @@ from tracer import bvh_update, config
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 from tracer.jit import jit
-from tracer.lights import LightTable, build_light_table, light_arrays
+from tracer.lights import LightTable, build_light_table, light_arrays, scene_fields
 from tracer.materials import MaterialTable, material_table
 from tracer.scene_arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
 from tracer.scene_model import Mesh, SceneState
@@ -534,14 +534,7 @@ def compile_scene(
         mat_two_sided=materials.two_sided,
         mat_kind=materials.kind,
         mat_param=materials.param,
-        light_kind=light.kind,
-        light_inst=light.inst,
-        light_tri=light.tri,
-        light_cdf=light.cdf,
-        light_total=light.total,
-        light_data=light.data,
-        light_env=light.env,
-        sky=light.sky,
+        **scene_fields(light),
     )
     stats = SceneStats(
         triangles=sum(meshes[key].triangles for key in set(k for _, k, _, _, _ in inst)),

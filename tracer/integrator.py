@@ -38,7 +38,7 @@ from tracer.bsdf import (
     diffuse_pdf,
     diffuse_sample,
 )
-from tracer.camera import LENS_RADIUS, primary_ray, thin_lens_ray
+from tracer.camera import LENS_DIM, camera_sample_ray
 from tracer.jit import jit, jit_inline
 from tracer.lights import (
     TRIANGLE,
@@ -68,8 +68,8 @@ DIMS_PER_VERTEX = 8
 """Random dimensions reserved per path vertex: light choice (+0), light point (+1, two 32-bit
 uniforms), BSDF direction (+2, two), Russian roulette (+3), BSDF lobe choice (+4), three
 spare. Dimension 0 jitters the pixel position (two); ``LENS_DIM`` places the lens sample."""
-LENS_DIM = DIMS_PER_VERTEX
-"""The thin lens's two uniforms: the last spare dimension of the first vertex (1 + 7)."""
+if LENS_DIM != DIMS_PER_VERTEX:  # the lens takes the first vertex's last spare dimension
+    raise ImportError("camera.LENS_DIM must be the first vertex's last spare dimension")
 
 PATH = 0
 WHITTED = 1
@@ -188,12 +188,7 @@ def path_kernel(materials: bool, lights: bool):
                 cost = 0
                 for sample in range(sample_start, sample_start + spp):
                     key = sample_key(p_key, sample)
-                    jx, jy = uniform2(key, 0)
-                    if camera[LENS_RADIUS] > 0.0:
-                        l1, l2 = uniform2(key, LENS_DIM)
-                        o, d = thin_lens_ray(camera, width, height, x + jx, y + jy, l1, l2)
-                    else:
-                        o, d = primary_ray(camera, width, height, x + jx, y + jy)
+                    o, d = camera_sample_ray(camera, width, height, x, y, key)
                     L = (0.0, 0.0, 0.0)
                     beta = (1.0, 1.0, 1.0)
                     p_bsdf_prev = 0.0

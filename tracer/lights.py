@@ -243,6 +243,13 @@ def build_light_table(
     )
 
 
+def scene_fields(light: LightArrays) -> dict[str, np.ndarray]:
+    """``light`` as the ``SceneArrays`` fields it fills (``light_kind``, ..., ``sky``)."""
+    fields = {f"light_{name}": value for name, value in light._asdict().items()}
+    fields["sky"] = fields.pop("light_sky")
+    return fields
+
+
 def light_arrays(table: LightTable, kinds: frozenset[int] | None = None) -> LightArrays:
     """The kernel arrays of ``table``, keeping only lights of ``kinds`` (all if None).
 

@@ -23,7 +23,7 @@ from tracer.compile import CompiledScene
 from tracer.effects import EffectPlan, effect_plan
 from tracer.heatmap import cost_heatmap
 from tracer.integrator import PATH, WHITTED, kernel_for, render_pixels_specialised
-from tracer.lights import light_arrays
+from tracer.lights import light_arrays, scene_fields
 from tracer.scene_arrays import SceneArrays
 from tracer.surface_integrators import OUTPUTS, render_surface
 from tracer.threads import run_parts
@@ -54,16 +54,7 @@ def arrays_for_plan(scene: CompiledScene, plan: EffectPlan) -> SceneArrays:
     if present <= kinds:
         return scene.arrays
     light = light_arrays(scene.lights, kinds)
-    return scene.arrays._replace(
-        light_kind=light.kind,
-        light_inst=light.inst,
-        light_tri=light.tri,
-        light_cdf=light.cdf,
-        light_total=light.total,
-        light_data=light.data,
-        light_env=light.env,
-        sky=light.sky,
-    )
+    return scene.arrays._replace(**scene_fields(light))
 
 
 def render_lines(

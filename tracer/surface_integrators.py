@@ -9,7 +9,7 @@ hit's reflectance colour (white for dielectrics), its normal facing the camera m
 ``0.5 n + 0.5``, and the distance along the camera ray. Rays that hit nothing give 0. Every
 output averages its camera samples like the path tracer (box filter, same jitter and lens).
 
-Random dimensions: 0 the pixel jitter, ``integrator.LENS_DIM`` the lens, ``1 + i`` the i-th
+Random dimensions: 0 the pixel jitter, ``camera.LENS_DIM`` the lens, ``1 + i`` the i-th
 occlusion ray.
 """
 
@@ -17,7 +17,9 @@ import numpy as np
 
 from tracer.borrow import borrowed
 from tracer.bsdf import bsdf_albedo
-from tracer.camera import LENS_RADIUS, primary_ray, thin_lens_ray
+from tracer.camera import LENS_DIM as LENS_DIM  # the lens dimension, shared with the path tracer
+from tracer.camera import camera_sample_ray
+from tracer.integrator import PIXEL_BLOCK
 from tracer.jit import jit
 from tracer.rng import pixel_key, sample_key, uniform2
 from tracer.sampling import square_to_cosine_hemisphere
@@ -37,10 +39,6 @@ ALBEDO = 1
 NORMAL = 2
 DEPTH = 3
 OUTPUTS = {"ao": AO, "albedo": ALBEDO, "normal": NORMAL, "depth": DEPTH}
-
-PIXEL_BLOCK = 32
-LENS_DIM = 8
-"""The lens's dimension, as in ``tracer.integrator`` (kept equal by a test)."""
 
 
 @jit
@@ -85,12 +83,7 @@ def render_surface(
             cost = 0
             for sample in range(sample_start, sample_start + spp):
                 key = sample_key(p_key, sample)
-                jx, jy = uniform2(key, 0)
-                if camera[LENS_RADIUS] > 0.0:
-                    l1, l2 = uniform2(key, LENS_DIM)
-                    o, d = thin_lens_ray(camera, width, height, x + jx, y + jy, l1, l2)
-                else:
-                    o, d = primary_ray(camera, width, height, x + jx, y + jy)
+                o, d = camera_sample_ray(camera, width, height, x, y, key)
                 k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
                 cost += c
                 if k < 0:
