@@ -73,7 +73,10 @@ class SceneDetail(ScenePublic):
     render: dict
     sky: list[float]
     animation: dict | None
-    effects: dict = Field(description="which ray types and material paths the scene needs")
+    effects: dict = Field(
+        description="the effect plan the tracers render the scene with: enabled effects, "
+        "skipped ones and the rule behind each (docs/effects.md)"
+    )
     node_list: list[dict]
 
 

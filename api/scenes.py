@@ -11,11 +11,9 @@ so a restart rebuilds the scene graph from ``state.tls`` plus the commits, witho
 the uploaded files again. Every ``COMPACT_EVERY`` commits the state is rewritten and the
 commit files before it removed.
 
-**Version spaces.** One coordinator renders every scene, and its tracers know a scene only by
-version number. So each live :class:`SceneGraph` (a scene's, or a job's private copy) numbers
-its versions from its own offset (``k << 32``): versions of different graphs never collide,
-and a tracer holding another graph's version is sent a snapshot. Users only ever see the
-scene's own version (``internal - offset``).
+**Graphs.** Each scene's live :class:`SceneGraph` is keyed by the scene's id; one coordinator
+renders every scene (and every job's private copy, keyed by the job's id), and its tracers
+keep replicas of the few most recently used graphs under those keys.
 
 **Uploads.** Paths inside a bundle or a multipart upload must be relative, stay inside the
 scene's directory, and name regular files: absolute paths, drive letters, ``..``,
@@ -28,7 +26,6 @@ before any loader reads them, so a scene can reference only files inside its upl
 """
 
 import dataclasses
-import itertools
 import json
 import re
 import secrets
@@ -51,7 +48,6 @@ from tracer.loader import MESH_SUFFIXES, load_scene
 from tracer.scene_model import SceneState
 from tracer.scene_ops import Commit
 
-VERSION_SPACE = 1 << 32
 COMPACT_EVERY = 256
 GROWING_OPS = ("add_mesh", "replace_mesh", "add_node")
 """Operations that can add triangles: a commit holding one is checked against the limit."""
@@ -59,28 +55,7 @@ CHUNK = 1 << 16
 MAX_NAME = 255
 MAX_PATH = 1024
 
-_offsets = itertools.count(1)
 _DRIVE = re.compile(r"^[A-Za-z]:")
-
-
-class VersionedGraph:
-    """A :class:`SceneGraph` numbering its versions from an offset of its own (see the module
-    docstring); ``version`` and ``user_state`` are in the user's numbering."""
-
-    def __init__(self, state: SceneState) -> None:
-        self.offset = next(_offsets) * VERSION_SPACE
-        self.graph = SceneGraph(dataclasses.replace(state, version=self.offset + state.version))
-
-    @property
-    def version(self) -> int:
-        return self.graph.version - self.offset
-
-    def user_version(self, internal: int) -> int:
-        return internal - self.offset
-
-    def user_state(self) -> SceneState:
-        state = self.graph.state
-        return dataclasses.replace(state, version=state.version - self.offset)
 
 
 @dataclass(eq=False)
@@ -91,18 +66,14 @@ class SceneEntry:
     name: str
     source: str
     directory: Path
-    versioned: VersionedGraph
+    graph: SceneGraph
     lock: threading.Lock = field(default_factory=threading.Lock)
     summary_cache: dict = field(default_factory=dict)
     commits_since_compaction: int = 0
 
     @property
-    def graph(self) -> SceneGraph:
-        return self.versioned.graph
-
-    @property
     def version(self) -> int:
-        return self.versioned.version
+        return self.graph.version
 
 
 def new_id(prefix: str) -> str:
@@ -318,24 +289,14 @@ def bounds(state: SceneState) -> tuple[list[float], list[float]] | None:
 
 
 def effects(state: SceneState) -> dict:
-    """Which ray types and material paths the scene needs, from its content. (A summary of
-    the state; the tracer's own effect plan replaces it when it lands.)"""
-    used = {n.material for n in state.geometry_nodes()}
-    emissive = sorted(
-        m for m in used if m in state.materials and max(state.materials[m].emission) > 0
-    )
-    reflective = any(max(state.materials[m].reflectance) > 0 for m in used if m in state.materials)
-    sky = max(state.sky.radiance) > 0
-    depth = state.render.max_depth
-    return {
-        "emitters_seen": bool(emissive) or sky,
-        "area_lights": emissive,
-        "shadow_rays": bool(emissive) and depth >= 2 and reflective,
-        "sky": sky,
-        "indirect_bounces": max(0, depth - 2) if reflective else 0,
-        "material_types": sorted({state.materials[m].type for m in used if m in state.materials}),
-        "textures": False,
-    }
+    """The effect plan the tracers render the scene with: ``tracer.effects.effect_plan`` of the
+    compiled scene under its render settings (the same function, so the same answer). Compiling
+    builds the BVHs, about a second per million triangles, on a worker thread (numba releases
+    the GIL); the result is cached per version with the rest of the summary."""
+    from tracer.compile import compile_scene
+    from tracer.effects import effect_plan
+
+    return effect_plan(compile_scene(state), state.render).to_json()
 
 
 def summary(state: SceneState) -> dict:
@@ -420,10 +381,12 @@ class SceneRepository:
         scene_id = new_id("s")
         directory = self.root / scene_id
         (staged / "commits").mkdir()
-        _write_atomic(staged / "state.tls", encode_state(dataclasses.replace(state, version=0)))
+        state = dataclasses.replace(state, version=0)
+        _write_atomic(staged / "state.tls", encode_state(state))
         staged.rename(directory)
         self.store.add_scene(scene_id, name, source, str(entry), triangles)
-        entry_obj = SceneEntry(scene_id, name, source, directory, VersionedGraph(state))
+        graph = SceneGraph(state, key=scene_id)
+        entry_obj = SceneEntry(scene_id, name, source, directory, graph)
         with self._lock:
             self._entries[scene_id] = entry_obj
         return entry_obj
@@ -451,9 +414,8 @@ class SceneRepository:
             raise ApiError(
                 500, f"scene {scene_id} cannot be restored: {exc}", "corrupt_scene"
             ) from None
-        entry = SceneEntry(
-            scene_id, record["name"], record["source"], directory, VersionedGraph(state)
-        )
+        graph = SceneGraph(state, key=scene_id)
+        entry = SceneEntry(scene_id, record["name"], record["source"], directory, graph)
         with self._lock:
             return self._entries.setdefault(scene_id, entry)
 
@@ -480,7 +442,7 @@ class SceneRepository:
                         "too_many_triangles",
                     )
             commit = entry.graph.commit(parsed)  # SceneError -> 422, nothing changed
-            version = entry.versioned.user_version(commit.version)
+            version = commit.version
             _write_atomic(
                 entry.directory / "commits" / f"{version}.tlc",
                 encode_commit(Commit(version, commit.ops)),
@@ -493,7 +455,7 @@ class SceneRepository:
         return version
 
     def _compact(self, entry: SceneEntry) -> None:
-        state = entry.versioned.user_state()
+        state = entry.graph.state
         _write_atomic(entry.directory / "state.tls", encode_state(state))
         for path in (entry.directory / "commits").glob("*.tlc"):
             if int(path.stem) <= state.version:
@@ -502,7 +464,7 @@ class SceneRepository:
 
     def summary(self, entry: SceneEntry) -> dict:
         with entry.lock:
-            state = entry.versioned.user_state()
+            state = entry.graph.state
         cached = entry.summary_cache.get(state.version)
         if cached is None:
             cached = summary(state)

@@ -17,12 +17,12 @@ budget. So a session waits at most one job frame between two of its own frames, 
 advances at least once per round. Sessions nobody watches (no stream client and no request
 for ``session_render_grace`` seconds) are skipped; idle ones expire.
 
-**Graphs.** Every live graph numbers its versions in its own space (:mod:`api.scenes`), and
-the thread points ``coordinator.graph`` at the graph of whatever it renders next; tracers
-holding another graph's version get a snapshot (through the object store, once per
-version). A job renders a private graph made from the scene's state when it was submitted
-(saved beside its results), so later commits to the scene never change a job, and an
-animation's pose commits never touch the scene.
+**Graphs.** The thread names the graph of whatever it renders next in each coordinator call;
+tracers keep replicas of the few most recently used graphs (by key), so taking turns between
+scenes costs a snapshot only for a scene a tracer does not hold. A job renders a private graph
+(keyed by the job's id) made from the scene's state when it was submitted (saved beside its
+results), so later commits to the scene never change a job, and an animation's pose commits
+never touch the scene.
 
 **Restart.** Jobs, their state snapshots and each finished frame are on disk before they are
 reported. At start, ``running`` and ``queued`` jobs are queued again and resume at their first
@@ -48,9 +48,10 @@ from typing import Any
 import numpy as np
 
 from api.events import EventHub
-from api.scenes import SceneEntry, SceneRepository, VersionedGraph, _write_atomic
+from api.scenes import SceneEntry, SceneRepository, _write_atomic
 from api.settings import Settings
 from api.store import TERMINAL, Store
+from cluster.scene_graph import SceneGraph
 from tracer import scene_format as fmt
 from tracer.commit_codec import decode_state, encode_state
 from tracer.errors import SceneError
@@ -145,7 +146,7 @@ class JobRun:
         self.request = record["request"]
         self.settings = settings
         self.base = job_state(state, self.request)
-        self.versioned = VersionedGraph(self.base)
+        self.graph = SceneGraph(self.base, key=self.id)
         self.frames = job_frames(self.base, self.request)
         self.todo = [f for f in self.frames if f.number not in done_frames]
         self.done = len(self.frames) - len(self.todo)
@@ -181,22 +182,21 @@ class JobRun:
         return not self.todo and self.current is None
 
     def _camera_settings(self, spec: FrameSpec):
-        state = self.versioned.graph.state
+        state = self.graph.state
         camera = spec.camera or state.camera
         return camera, state.render
 
     def step(self, coordinator) -> tuple[FrameSpec, np.ndarray, dict] | None:
         """Render one coordinator frame; returns (frame, image, info) when a frame is done."""
-        coordinator.graph = self.versioned.graph
         if self.current is None:
             self.current = self.todo[0]
             self.current_started = time.monotonic()
             if self.keyframes:
-                self.versioned.graph.frame_commit(self.current.number)
+                self.graph.frame_commit(self.current.number)
         spec = self.current
         camera, render = self._camera_settings(spec)
         if self.mode == "spp":
-            self.inflight = coordinator.submit_frame(spec.number, camera, render, 0)
+            self.inflight = coordinator.submit_frame(spec.number, camera, render, 0, self.graph)
             try:
                 frame = coordinator.wait_frame(self.inflight)
             finally:
@@ -222,7 +222,7 @@ class JobRun:
             half = p.spp_a - p.spp_b
         t0 = time.monotonic()
         self.inflight = coordinator.submit_frame(
-            spec.number, camera, fmt.override(render, spp=half), p.spp
+            spec.number, camera, fmt.override(render, spp=half), p.spp, self.graph
         )
         try:
             frame = coordinator.wait_frame(self.inflight)
@@ -595,9 +595,9 @@ class RenderService:
         import ray
 
         self._node = ray.get_runtime_context().get_node_id()
-        self.warm = VersionedGraph(warm_state())
+        self.warm = SceneGraph(warm_state(), key="warm")
         self.coordinator = Coordinator(
-            self.warm.graph,
+            self.warm,
             tracers=self.settings.tracers,
             cpus_per_tracer=self.settings.threads,
             balancer=self.settings.balancer,
@@ -859,22 +859,16 @@ class RenderService:
     # Queries ---------------------------------------------------------------------------------
 
     def query_call(self, entry: SceneEntry, origin: np.ndarray, direction: np.ndarray):
-        """A call that traces one ray at the scene's current version. A 1x1 frame brings a
-        tracer to that version first (the tracer that rendered it holds it), then that
-        tracer answers the query at exactly that version."""
+        """A call that traces one ray at the scene's current version (a tracer reaches that
+        version first, like a render call)."""
 
         def run(coordinator):
-            import ray
-
-            coordinator.graph = entry.graph
-            state = entry.graph.state
-            camera = fmt.override(state.camera, width=1, height=1)
-            settings = fmt.override(state.render, spp=1, max_depth=1)
-            frame = coordinator.render_frame(0, camera, settings, 0)
-            handle = coordinator.tracer_handle(frame.ranges[0].tracer)
-            ref = handle.query.remote(origin[None, :], direction[None, :], frame.version, None)
-            hits = ray.get(ref, timeout=self.settings.request_timeout)
-            return entry.versioned.user_version(frame.version), hits
+            return coordinator.query(
+                origin[None, :],
+                direction[None, :],
+                graph=entry.graph,
+                timeout=self.settings.request_timeout,
+            )
 
         return run
 
@@ -887,7 +881,6 @@ class RenderService:
         factory = self.session_factory()
 
         def create(coordinator):
-            coordinator.graph = live.entry.graph
             session = factory(
                 coordinator, live.entry.graph, target_fps=target_fps, min_blend=min_blend
             )
@@ -947,7 +940,6 @@ class RenderService:
             # overhead per frame (bookkeeping, hand-off to the encoder, calls, scheduling).
             live.overheads.append(round(1000 * (t0 - live.last_render_end), 3))
         shows_update = live.camera_update_at
-        self.coordinator.graph = live.entry.graph
         try:
             frame = live.session.render_next()
         except Exception as exc:
@@ -961,7 +953,7 @@ class RenderService:
             live.camera_update_at = None
         meta = {
             "index": int(frame.index),
-            "version": live.entry.versioned.user_version(int(frame.version)),
+            "version": int(frame.version),
             "spp": int(frame.spp),
             "width": int(frame.width),
             "height": int(frame.height),

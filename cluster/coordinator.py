@@ -1,7 +1,9 @@
 """The Brigade core (Bikker 7.3.1-7.3.4): tracer actors, frame scheduling, assembly, failures.
 
 A :class:`Coordinator` starts tracer actors (:mod:`worker.tracer_actor`) on Ray, by default one
-per node using all of that node's CPUs, and renders frames of a :class:`SceneGraph`:
+per node using all of that node's CPUs, and renders frames of a :class:`SceneGraph` (its own
+``graph``, or any other passed per call: tracers keep replicas of a few graphs, each under the
+graph's ``key``, so a service renders many scenes in turns without resending them):
 
 1. **Schedule** (``submit_frame``): the frame is pinned to the graph's current version ``v``
    (and the state at ``v`` is kept). The balancer splits the lines among the ready tracers.
@@ -66,7 +68,7 @@ from tracer import scene_format as fmt
 from tracer.commit_codec import encode_commit, encode_state
 from tracer.scene_model import SceneState
 from worker.replica import KEEP_VERSIONS
-from worker.tracer_actor import LinesResult, OutOfSync, TracerInfo, remote_tracer
+from worker.tracer_actor import MAX_SCENES, LinesResult, OutOfSync, TracerInfo, remote_tracer
 
 log = logging.getLogger("tilerender.cluster")
 
@@ -155,8 +157,9 @@ class _Slot:
     state: str = "starting"
     """``starting``, ``ready``, ``recovering`` (died; Ray restarts it), ``dead`` or
     ``retired``."""
-    synced: int | None = None
-    """The version the tracer will hold once its submitted calls ran (None: no scene)."""
+    synced: OrderedDict[str, int] = field(default_factory=OrderedDict)
+    """Per scene key, the version the tracer will hold once its submitted calls ran (the
+    tracer's replicas, least recently used first, as it keeps them)."""
     probe: Any = None
     probe_at: float = 0.0
     died_probes: int = 0
@@ -188,6 +191,7 @@ class FrameJob:
     """A frame in flight; ``Coordinator.wait_frame`` turns it into a :class:`Frame`."""
 
     frame: int
+    graph: SceneGraph
     state: SceneState
     camera: fmt.Camera
     settings: fmt.RenderSettings
@@ -208,6 +212,21 @@ class FrameJob:
     @property
     def version(self) -> int:
         return self.state.version
+
+
+def _held(slot: _Slot, scene: str) -> int | None:
+    """The version of ``scene`` the coordinator believes ``slot`` holds (None: none)."""
+    return slot.synced.get(scene)
+
+
+def _hold(slot: _Slot, scene: str, version: int | None) -> None:
+    """Record that ``slot`` holds ``version`` of ``scene`` (None: nothing), mirroring the
+    tracer's most-recently-used order and its limit of ``MAX_SCENES``."""
+    slot.synced.pop(scene, None)
+    if version is not None:
+        slot.synced[scene] = version
+        while len(slot.synced) > MAX_SCENES:
+            slot.synced.popitem(last=False)
 
 
 class Coordinator:
@@ -260,9 +279,9 @@ class Coordinator:
         }
         self._slots: list[_Slot] = []
         self._numbers = itertools.count()
-        self._snapshots: OrderedDict[int, Any] = OrderedDict()
-        self._commit_blobs: OrderedDict[int, bytes] = OrderedDict()
-        self._buffers: OrderedDict[tuple[int, int], Any] = OrderedDict()
+        self._snapshots: OrderedDict[tuple[str, int], Any] = OrderedDict()
+        self._commit_blobs: OrderedDict[tuple[str, int], bytes] = OrderedDict()
+        self._buffers: OrderedDict[tuple[str, int, int], Any] = OrderedDict()
         self._orphans: dict = {}
         self._last_done = 0.0
         if not ray.is_initialized():
@@ -315,10 +334,12 @@ class Coordinator:
         return slot
 
     def _send_probe(self, slot: _Slot, now: float) -> None:
-        """Queue a snapshot of the current version on the tracer: it runs as soon as the actor
-        is up, and its answer says the tracer is ready."""
+        """Queue a snapshot of the own graph's current version on the tracer: it runs as soon
+        as the actor is up, and its answer says the tracer is ready."""
         state = self.graph.state
-        slot.probe = slot.handle.sync_snapshot.remote(self._snapshot_ref(state))
+        slot.probe = slot.handle.sync_snapshot.remote(
+            self._snapshot_ref(self.graph.key, state), self.graph.key
+        )
         slot.probe_at = now
 
     def _wait_started(self, slots: list[_Slot], timeout: float, require_all: bool) -> None:
@@ -379,7 +400,7 @@ class Coordinator:
                 log.info("tracer %s not back yet: %s", slot.id, _first_line(error))
                 continue
             slot.state = "ready"
-            slot.synced = version
+            _hold(slot, self.graph.key, version)
             slot.died_probes = 0
             slot.last_done = now
 
@@ -421,7 +442,8 @@ class Coordinator:
                 "state": s.state,
                 "cpus": s.cpus,
                 "threads": max(1, int(s.cpus)),
-                "synced": s.synced,
+                "synced": s.synced.get(self.graph.key),
+                "scenes": len(s.synced),
                 "pid": s.pid,
                 "node": s.node,
                 "failures": s.failures,
@@ -460,45 +482,49 @@ class Coordinator:
 
     # Scene data for tracers ------------------------------------------------------------------
 
-    def _snapshot_ref(self, state: SceneState):
-        """The encoded snapshot of ``state`` in the object store (put once per version)."""
-        ref = self._snapshots.get(state.version)
+    def _snapshot_ref(self, scene: str, state: SceneState):
+        """The encoded snapshot of ``state`` in the object store (put once per scene and
+        version)."""
+        key = (scene, state.version)
+        ref = self._snapshots.get(key)
         if ref is None:
-            ref = self._snapshots[state.version] = ray.put(encode_state(state))
+            ref = self._snapshots[key] = ray.put(encode_state(state))
             while len(self._snapshots) > SNAPSHOTS_KEPT:
                 self._snapshots.popitem(last=False)
         return ref
 
-    def _commits(self, since: int, version: int) -> list[bytes] | None:
-        """Encoded commits taking a replica from ``since`` to ``version``; None if the graph's
-        log does not reach back that far."""
-        commits = self.graph.commits_since(since)
+    def _commits(self, graph: SceneGraph, since: int, version: int) -> list[bytes] | None:
+        """Encoded commits taking a replica of ``graph`` from ``since`` to ``version``; None if
+        the graph's log does not reach back that far."""
+        commits = graph.commits_since(since)
         if commits is None:
             return None
         blobs = []
         for commit in commits:
             if commit.version > version:
                 break
-            blob = self._commit_blobs.get(commit.version)
+            key = (graph.key, commit.version)
+            blob = self._commit_blobs.get(key)
             if blob is None:
-                blob = self._commit_blobs[commit.version] = encode_commit(commit)
+                blob = self._commit_blobs[key] = encode_commit(commit)
                 while len(self._commit_blobs) > COMMITS_KEPT:
                     self._commit_blobs.popitem(last=False)
             blobs.append(blob)
         return blobs
 
-    def _sync_for(self, have: int | None, job: FrameJob) -> tuple[Any, Any]:
-        """(commit buffer, snapshot ref or None) for a tracer holding ``have`` to render
-        ``job``. The buffer is a list of encoded commits, or the object-store reference of
-        one when it is large (Ray resolves either argument to the list in the tracer)."""
-        if have is not None and have >= job.version:
+    def _sync_for(self, have: int | None, graph: SceneGraph, state: SceneState) -> tuple[Any, Any]:
+        """(commit buffer, snapshot ref or None) for a tracer holding ``have`` of ``graph`` to
+        reach ``state``. The buffer is a list of encoded commits, or the object-store reference
+        of one when it is large (Ray resolves either argument to the list in the tracer)."""
+        version = state.version
+        if have is not None and have >= version:
             return [], None  # it should still hold the version; if not it says OutOfSync
-        commits = None if have is None else self._commits(have, job.version)
+        commits = None if have is None else self._commits(graph, have, version)
         if commits is None:
-            return [], self._snapshot_ref(job.state)
+            return [], self._snapshot_ref(graph.key, state)
         if sum(len(c) for c in commits) <= INLINE_COMMITS:
             return commits, None
-        key = (have, job.version)
+        key = (graph.key, have, version)
         ref = self._buffers.get(key)
         if ref is None:
             ref = self._buffers[key] = ray.put(commits)
@@ -514,13 +540,15 @@ class Coordinator:
         camera: fmt.Camera | None = None,
         settings: fmt.RenderSettings | None = None,
         sample_start: int = 0,
+        graph: SceneGraph | None = None,
     ) -> FrameJob:
-        """Schedule ``frame`` at the graph's current version and send every tracer its range
-        (with its commit buffer); returns at once. ``camera`` and ``settings`` default to the
-        scene's at that version."""
+        """Schedule ``frame`` at the current version of ``graph`` (default the coordinator's
+        own) and send every tracer its range (with its commit buffer); returns at once.
+        ``camera`` and ``settings`` default to the scene's at that version."""
         self._drain_orphans()
         self._poll_slots()
-        state = self.graph.state
+        graph = graph or self.graph
+        state = graph.state
         camera = camera or state.camera
         settings = settings or state.render
         if frame < 0 or sample_start < 0:
@@ -529,6 +557,7 @@ class Coordinator:
         now = time.perf_counter()
         job = FrameJob(
             frame=frame,
+            graph=graph,
             state=state,
             camera=camera,
             settings=settings,
@@ -574,7 +603,9 @@ class Coordinator:
         attempt: int,
         sync: tuple[Any, Any] | None = None,
     ) -> _Task:
-        commits, snapshot = sync if sync is not None else self._sync_for(slot.synced, job)
+        scene = job.graph.key
+        have = _held(slot, scene)
+        commits, snapshot = sync if sync is not None else self._sync_for(have, job.graph, job.state)
         ref = slot.handle.render.remote(
             job.frame,
             job.version,
@@ -585,11 +616,12 @@ class Coordinator:
             y1,
             job.sample_start,
             snapshot,
+            scene,
         )
         if snapshot is not None:
-            slot.synced = job.version
-        elif slot.synced is not None:  # the commits (if any) take it to the version
-            slot.synced = max(slot.synced, job.version)
+            _hold(slot, scene, job.version)
+        elif have is not None:  # the commits (if any) take it to the version
+            _hold(slot, scene, max(have, job.version))
         job.assembler.assign(y0, y1)
         task = job.pending[ref] = _Task(slot, y0, y1, kind, attempt, time.perf_counter())
         return task
@@ -627,9 +659,10 @@ class Coordinator:
         camera: fmt.Camera | None = None,
         settings: fmt.RenderSettings | None = None,
         sample_start: int = 0,
+        graph: SceneGraph | None = None,
     ) -> Frame:
-        """Render one frame at the graph's current version."""
-        return self.wait_frame(self.submit_frame(frame, camera, settings, sample_start))
+        """Render one frame at the current version of ``graph`` (default the own graph)."""
+        return self.wait_frame(self.submit_frame(frame, camera, settings, sample_start, graph))
 
     def render_animation(
         self,
@@ -682,7 +715,7 @@ class Coordinator:
         now = time.perf_counter()
         slot.last_done = now
         if isinstance(out, OutOfSync):
-            slot.synced = out.have
+            _hold(slot, out.scene, out.have)
             slot.incarnation = out.incarnation
             job.resyncs += 1
             if task.attempt >= self.max_attempts:
@@ -692,9 +725,10 @@ class Coordinator:
             if not job.assembler.missing(task.y0, task.y1):
                 return
             if out.have is None or out.have >= job.version or task.resent:
-                sync = ([], self._snapshot_ref(job.state))  # it cannot get there by commits
+                # it cannot get there by commits
+                sync = ([], self._snapshot_ref(job.graph.key, job.state))
             else:
-                sync = self._sync_for(out.have, job)
+                sync = self._sync_for(out.have, job.graph, job.state)
             again = self._submit(job, slot, task.y0, task.y1, task.kind, task.attempt + 1, sync)
             again.resent = True
             return
@@ -725,7 +759,7 @@ class Coordinator:
         now = time.perf_counter()
         log.warning("tracer %s lost: %s", slot.id, _first_line(error))
         slot.state = "recovering"
-        slot.synced = None
+        slot.synced.clear()
         slot.failed_at = now
         slot.failures += 1
         self.stats["failures"] += 1
@@ -873,13 +907,33 @@ class Coordinator:
 
     # Queries ---------------------------------------------------------------------------------
 
-    def query(self, origins, directions, t_max=None, timeout: float = 60.0):
-        """Ray queries (Bikker 7.3.6) on a ready tracer's newest version."""
-        slots = self._schedulable()
-        ref = slots[0].handle.query.remote(
-            np.asarray(origins, float), np.asarray(directions, float), None, t_max
-        )
-        return ray.get(ref, timeout=timeout)
+    def query(
+        self,
+        origins,
+        directions,
+        t_max: float | None = None,
+        graph: SceneGraph | None = None,
+        timeout: float = 60.0,
+    ) -> tuple[int, Any]:
+        """Ray queries (Bikker 7.3.6) at the current version of ``graph`` (default the own
+        graph) on a ready tracer, which first reaches that version like a render call. Returns
+        ``(version, tracer.query.SceneHits)``."""
+        graph = graph or self.graph
+        state = graph.state
+        origins, directions = np.asarray(origins, float), np.asarray(directions, float)
+        slot = self._schedulable()[0]
+        have = _held(slot, graph.key)
+        for sync in (self._sync_for(have, graph, state), None):
+            commits, snapshot = sync or ([], self._snapshot_ref(graph.key, state))
+            ref = slot.handle.query.remote(
+                origins, directions, state.version, t_max, graph.key, commits, snapshot
+            )
+            out = ray.get(ref, timeout=timeout)
+            if not isinstance(out, OutOfSync):
+                _hold(slot, graph.key, max(have or 0, state.version))
+                return state.version, out
+            _hold(slot, graph.key, out.have)
+        raise ClusterError(f"tracer {slot.id} cannot reach version {state.version}: {out.reason}")
 
 
 def _first_line(error: BaseException) -> str:

@@ -3,9 +3,13 @@
 Every change is a :class:`~tracer.scene_ops.Commit` that takes version ``v`` to ``v + 1``. The
 graph keeps the last ``log_limit`` commits, so a replica that is a little behind catches up by
 applying them in order; one that is further behind (or new) gets a snapshot instead.
+
+Each graph has a ``key`` (unique unless given): tracers keep replicas of several graphs under
+their keys, so one coordinator can render many scenes in turns.
 """
 
 import threading
+import uuid
 from collections import deque
 from collections.abc import Iterable, Mapping
 from itertools import islice
@@ -21,10 +25,12 @@ class SceneGraph:
     """The current scene state and a bounded log of the commits that led to it. Thread-safe:
     commits are applied one at a time, and readers see a state and log that belong together."""
 
-    def __init__(self, state: SceneState, log_limit: int = 1024) -> None:
+    def __init__(self, state: SceneState, log_limit: int = 1024, key: str | None = None) -> None:
         if log_limit < 0:
             raise ValueError(f"log_limit must be at least 0, not {log_limit}")
         check_state(state)
+        self.key = key or uuid.uuid4().hex
+        """Names this graph's replicas on the tracers."""
         self._state = state
         self._log: deque[Commit] = deque(maxlen=log_limit)
         self._lock = threading.Lock()

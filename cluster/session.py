@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cluster.coordinator import Coordinator
+from cluster.coordinator import Coordinator, Frame
 from cluster.scene_graph import SceneGraph
 from tracer import scene_format as fmt
 
@@ -156,6 +156,8 @@ class InteractiveSession:
         self._convergence = Convergence(min_blend)
         self._scaler = WorkloadScaler(1.0 / target_fps, max_spp=max_spp)
         self._image: np.ndarray | None = None
+        self.last_frame: Frame | None = None
+        """The coordinator's frame behind the latest session frame (tracers, idle, timings)."""
         self._index = 0
         self._fps = 0.0
         self._last: SessionFrame | None = None
@@ -185,11 +187,14 @@ class InteractiveSession:
         motion = (
             0.0 if self._rendered_camera is None else camera_motion(self._rendered_camera, small)
         )
-        version = self.graph.version
-        scene_changed = self._version is not None and version != self._version
         start = time.perf_counter()
-        frame = self.coordinator.render_frame(frame=self._index, camera=small, settings=settings)
+        frame = self.coordinator.render_frame(
+            frame=self._index, camera=small, settings=settings, graph=self.graph
+        )
         seconds = time.perf_counter() - start
+        self.last_frame = frame
+        version = frame.version
+        scene_changed = self._version is not None and version != self._version
         full = _upscale(frame.rgb, camera.height, camera.width)
         if self._image is None or motion == math.inf:
             self._convergence.reset()

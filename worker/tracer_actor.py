@@ -5,6 +5,10 @@ line ranges of frames with :func:`tracer.render.render_lines`; :func:`remote_tra
 Ray actor class from it (one process per tracer, restarted by Ray when it dies). Keeping the
 class plain lets the tests drive it in-process, without Ray.
 
+A tracer may hold several scenes at once (a service renders jobs and sessions of different
+scenes in turns): each is a replica under the key of its scene graph, the
+``MAX_SCENES`` most recently used are kept, and every call names its scene.
+
 A render call carries everything the tracer needs to reach the frame's version: the commit
 buffer since the version the coordinator believes the tracer holds (encoded commits, applied
 in order and idempotently), or a snapshot when the coordinator knows it has none. If the
@@ -19,6 +23,7 @@ oversubscribe the cores Ray gave them.
 import os
 import time
 import uuid
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +36,12 @@ from tracer.query import SceneHits
 from tracer.render import render_lines
 from tracer.threads import default_threads
 from worker.replica import SceneReplica
+
+DEFAULT_SCENE = "default"
+"""The scene key of calls that name none (a tracer serving one scene)."""
+MAX_SCENES = 4
+"""Scenes a tracer keeps compiled; the least recently used beyond this is dropped (a call
+for it later answers :class:`OutOfSync` and is resent with a snapshot)."""
 
 
 @dataclass
@@ -60,7 +71,8 @@ class LinesResult:
 
 @dataclass(frozen=True)
 class OutOfSync:
-    """The tracer could not reach ``version``: it holds ``have`` (None: no scene at all)."""
+    """The tracer could not reach ``version`` of ``scene``: it holds ``have`` of it (None:
+    nothing of that scene)."""
 
     tracer: str
     frame: int
@@ -68,6 +80,7 @@ class OutOfSync:
     have: int | None
     reason: str
     incarnation: str
+    scene: str = DEFAULT_SCENE
 
 
 @dataclass(frozen=True)
@@ -79,7 +92,10 @@ class TracerInfo:
     cpus: float
     threads: int
     version: int | None
+    """Newest version of the most recently used scene (None: no scene yet)."""
     versions: tuple[int, ...]
+    scenes: dict[str, tuple[int, ...]]
+    """Versions held per scene key, least recently used first."""
     cache_dir: str
     """numba's kernel cache directory in this process (shared by every tracer of a machine)."""
 
@@ -110,34 +126,47 @@ class Tracer:
         self.cpus = float(cpus) if cpus else float(default_threads())
         self.threads = max(1, int(self.cpus))
         self.delay = float(delay)
-        self.replica: SceneReplica | None = None
+        self.replicas: OrderedDict[str, SceneReplica] = OrderedDict()
         self.incarnation = uuid.uuid4().hex[:12]
         self.pid = os.getpid()
         self.node = _node_id()
 
     # Scene synchronisation -------------------------------------------------------------------
 
-    def sync_snapshot(self, blob: bytes) -> int:
-        """Start over from an encoded snapshot (``tracer.commit_codec.encode_state``); returns
-        the version now held."""
-        if self.replica is None:
-            self.replica = SceneReplica(blob)
-        else:
-            self.replica.reset(blob)
-        return self.replica.version
+    def replica(self, scene: str = DEFAULT_SCENE) -> SceneReplica | None:
+        """The replica of ``scene`` (marked most recently used), or None."""
+        replica = self.replicas.get(scene)
+        if replica is not None:
+            self.replicas.move_to_end(scene)
+        return replica
 
-    def version(self) -> int | None:
-        """The newest version held (None before the first snapshot)."""
-        return None if self.replica is None else self.replica.version
-
-    def _reach(self, version: int, commits: list[bytes], snapshot: bytes | None) -> str | None:
-        """Bring the replica to hold ``version``; None on success, else why not."""
-        replica = self.replica
-        if snapshot is not None and (replica is None or version not in replica.versions):
-            self.sync_snapshot(snapshot)
-            replica = self.replica
+    def sync_snapshot(self, blob: bytes, scene: str = DEFAULT_SCENE) -> int:
+        """Start ``scene`` over from an encoded snapshot (``tracer.commit_codec.encode_state``);
+        returns the version now held."""
+        replica = self.replica(scene)
         if replica is None:
-            return "no scene yet (new or restarted tracer)"
+            replica = self.replicas[scene] = SceneReplica(blob)
+            while len(self.replicas) > MAX_SCENES:
+                self.replicas.popitem(last=False)
+        else:
+            replica.reset(blob)
+        return replica.version
+
+    def version(self, scene: str = DEFAULT_SCENE) -> int | None:
+        """The newest version of ``scene`` held (None: none)."""
+        replica = self.replicas.get(scene)
+        return None if replica is None else replica.version
+
+    def _reach(
+        self, scene: str, version: int, commits: list[bytes], snapshot: bytes | None
+    ) -> str | None:
+        """Bring ``scene``'s replica to hold ``version``; None on success, else why not."""
+        replica = self.replica(scene)
+        if snapshot is not None and (replica is None or version not in replica.versions):
+            self.sync_snapshot(snapshot, scene)
+            replica = self.replicas[scene]
+        if replica is None:
+            return "no replica of this scene (new or restarted tracer, or dropped)"
         if version in replica.versions:
             return None
         try:
@@ -147,6 +176,10 @@ class Tracer:
         if version not in replica.versions:
             return f"holds versions {replica.versions}, not {version}"
         return None
+
+    def _out_of_sync(self, scene: str, frame: int, version: int, problem: str) -> OutOfSync:
+        have = self.version(scene)
+        return OutOfSync(self.id, frame, version, have, problem, self.incarnation, scene)
 
     # Rendering -------------------------------------------------------------------------------
 
@@ -161,25 +194,34 @@ class Tracer:
         y1: int,
         sample_start: int = 0,
         snapshot: bytes | None = None,
+        scene: str = DEFAULT_SCENE,
     ) -> "LinesResult | OutOfSync":
-        """Render lines [y0, y1) of ``frame`` exactly at scene ``version``.
+        """Render lines [y0, y1) of ``frame`` exactly at ``version`` of ``scene``.
 
         First applies ``commits`` (encoded, in version order; ones already applied are
         skipped), or starts from ``snapshot`` when given and needed. ``camera`` and ``settings``
         default to the scene's at ``version``.
         """
         start = time.perf_counter()
-        problem = self._reach(version, commits, snapshot)
+        problem = self._reach(scene, version, commits, snapshot)
         applied = time.perf_counter()
         if problem is not None:
-            return OutOfSync(self.id, frame, version, self.version(), problem, self.incarnation)
-        scene = self.replica.at(version)
+            return self._out_of_sync(scene, frame, version, problem)
+        compiled = self.replicas[scene].at(version)
         if self.delay > 0.0:
             time.sleep(self.delay)
-        settings = settings or scene.render
-        plan = effect_plan(scene, settings)
+        settings = settings or compiled.render
+        plan = effect_plan(compiled, settings)
         lines = render_lines(
-            scene, y0, y1, camera, settings, frame, sample_start, threads=self.threads, plan=plan
+            compiled,
+            y0,
+            y1,
+            camera,
+            settings,
+            frame,
+            sample_start,
+            threads=self.threads,
+            plan=plan,
         )
         return LinesResult(
             tracer=self.id,
@@ -204,9 +246,9 @@ class Tracer:
         directory, and this process's pid and node."""
         from tracer.integrator import kernel_for
 
-        if self.replica is None:
+        if not self.replicas:
             raise SceneError("warm_up needs a scene: send a snapshot first")
-        scene = self.replica.current
+        scene = next(reversed(self.replicas.values())).current
         start = time.perf_counter()
         tiny = fmt.override(scene.camera, width=1, height=1)
         settings = fmt.override(scene.render, spp=1)
@@ -228,16 +270,26 @@ class Tracer:
         directions: np.ndarray,
         version: int | None = None,
         t_max: float | None = None,
-    ) -> SceneHits:
-        """Single or batched ray queries (Bikker 7.3.6) on a held version (default newest)."""
-        if self.replica is None:
-            raise SceneError("query needs a scene: send a snapshot first")
-        return self.replica.query(origins, directions, version, t_max)
+        scene: str = DEFAULT_SCENE,
+        commits: list[bytes] = (),
+        snapshot: bytes | None = None,
+    ) -> "SceneHits | OutOfSync":
+        """Single or batched ray queries (Bikker 7.3.6) at ``version`` of ``scene`` (default
+        its newest), reached first with ``commits`` or ``snapshot`` like a render call."""
+        if version is None:
+            replica = self.replica(scene)
+            if replica is None:
+                raise SceneError("query needs a scene: send a snapshot first")
+            return replica.query(origins, directions, None, t_max)
+        problem = self._reach(scene, version, list(commits), snapshot)
+        if problem is not None:
+            return self._out_of_sync(scene, -1, version, problem)
+        return self.replicas[scene].query(origins, directions, version, t_max)
 
     # Introspection and test hooks ------------------------------------------------------------
 
     def info(self) -> TracerInfo:
-        replica = self.replica
+        replica = next(reversed(self.replicas.values()), None)
         return TracerInfo(
             id=self.id,
             node=self.node,
@@ -247,6 +299,7 @@ class Tracer:
             threads=self.threads,
             version=None if replica is None else replica.version,
             versions=() if replica is None else tuple(replica.versions),
+            scenes={key: tuple(r.versions) for key, r in self.replicas.items()},
             cache_dir=os.environ.get("NUMBA_CACHE_DIR", str(numba_cache.cache_base())),
         )
 

@@ -119,7 +119,7 @@ def _check_limits(ctx: Ctx, body: JobCreate, state) -> None:
 async def submit_job(body: JobCreate, ctx: Ctx, response: Response) -> JobPublic:
     """Submit a still or an animation render."""
     entry = await to_thread.run_sync(ctx.scenes.get, body.scene_id)
-    state = entry.versioned.user_state()
+    state = entry.graph.state
     _check_limits(ctx, body, state)
     active = ctx.store.count_jobs(("queued", "running"))
     if active >= ctx.settings.max_queue:

@@ -45,8 +45,19 @@ def test_upload_json_with_files_and_inspect(client):
     assert scene["source"] == "json" and scene["version"] == 0
     assert scene["triangles"] == 36
     assert scene["bounds"]["min"] == pytest.approx([-1, -1.01, -1], abs=1e-6)
-    assert scene["effects"]["area_lights"] == ["light"]
+    plan = scene["effects"]  # the tracers' own effect plan for this scene
+    assert {"area_lights", "light_samples", "shadows", "indirect"} <= set(plan["effects"])
+    assert {"sky", "refraction", "point_lights"} <= set(plan["skipped"])
+    assert plan["reasons"]["refraction"] == "no dielectric"
     assert client.get(f"/v1/scenes/{scene['id']}").json()["triangles"] == 36
+    glass = {"type": "dielectric", "ior": 1.5}
+    r = client.post(
+        f"/v1/scenes/{scene['id']}/commits",
+        json={"ops": [{"op": "set_material", "name": "white", "material": glass}]},
+    )
+    assert r.status_code == 200, r.text
+    after = client.get(f"/v1/scenes/{scene['id']}").json()["effects"]
+    assert {"refraction", "specular"} <= set(after["effects"])  # the plan follows commits
     listed = client.get("/v1/scenes").json()
     assert scene["id"] in [s["id"] for s in listed["data"]]
 

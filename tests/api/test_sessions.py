@@ -93,6 +93,20 @@ def test_deleting_the_scene_closes_its_sessions(client):
         time.sleep(0.05)
 
 
+def test_session_frames_show_in_the_cluster_stats(client):
+    """/v1/cluster reports the session's frames: their size and each tracer's lines."""
+    scene = upload_tiny(client)
+    session = open_session(client, scene["id"])
+    _, seq, _ = next_frame(client, session["id"], 0)
+    next_frame(client, session["id"], seq)
+    info = client.get("/v1/cluster").json()
+    last = info["last_frame"]
+    assert last["kind"] == "session"
+    assert sum(t["lines"] for t in last["tracers"].values()) == last["height"] <= 32
+    assert sum(t["lines_last_frame"] or 0 for t in info["tracers"]) == last["height"]
+    client.delete(f"/v1/sessions/{session['id']}")
+
+
 def test_jobs_and_sessions_share_the_cluster(client):
     """A long job does not starve a session: frames keep coming while it renders."""
     scene = upload_tiny(client)

@@ -186,7 +186,7 @@ def test_default_is_one_tracer_per_node_with_all_its_cpus(fresh):
     info = coordinator.info(tracer["id"])
     assert info.threads == 2 and info.node == ray.get_runtime_context().get_node_id()
     assert info.cache_dir == os.environ["NUMBA_CACHE_DIR"]
-    hits = coordinator.query([[-1.5, 3.5, 0.1]], [[0.0, -1.0, 0.0]])  # picking, on a tracer
+    _, hits = coordinator.query([[-1.5, 3.5, 0.1]], [[0.0, -1.0, 0.0]])  # picking, on a tracer
     assert hits.material == ["white"] and hits.node[0] == 3
 
 
@@ -322,11 +322,48 @@ def test_tracers_behind_the_log_or_reset_are_resynced(fresh):
         graph.commit([edit])
     frame = coordinator.render_frame(1)
     assert np.array_equal(frame.rgb, reference(graph.state, 1))
-    ray.get(coordinator.tracer_handle("t0").sync_snapshot.remote(encode_state(studio())))
+    ray.get(coordinator.tracer_handle("t0").sync_snapshot.remote(encode_state(studio()), graph.key))
     frame = coordinator.render_frame(2)
     assert frame.resyncs >= 1
     assert np.array_equal(frame.rgb, reference(graph.state, 2))
     assert all(t["synced"] == graph.version for t in coordinator.tracers())
+
+
+def test_graphs_taking_turns_keep_their_replicas_and_their_pixels(fresh):
+    """Frames of two graphs in turns through one coordinator: each equals its own reference,
+    and once every tracer holds both, a turn sends neither a snapshot nor a resync. Commits
+    to one graph reach its replicas as commit buffers; the other is untouched."""
+    own, other = SceneGraph(studio()), SceneGraph(studio())
+    other.commit([CAMERA_MOVE])
+    coordinator = fresh(own, tracers=2)
+    for number in range(4):
+        graph = (own, other)[number % 2]
+        if number == 2:
+            own.commit([MOVE])
+        frame = coordinator.render_frame(number, graph=graph)
+        assert frame.version == graph.version
+        assert np.array_equal(frame.rgb, reference(graph.state, number)), number
+        if number >= 2:
+            assert frame.resyncs == 0
+    snapshots = {key for key, _ in coordinator._snapshots}
+    assert snapshots == {own.key, other.key}
+    assert all(len(coordinator.info(t).scenes) == 2 for t in coordinator.ready)
+
+
+def test_a_query_sees_the_graph_at_its_current_version(fresh):
+    """``query`` on a given graph answers at that graph's current version, commits included,
+    whatever the tracers rendered last."""
+    own, other = SceneGraph(studio()), SceneGraph(studio())
+    coordinator = fresh(own, tracers=1)
+    down = ([[0.5, 3.5, 0.3]], [[0.0, -1.0, 0.0]])
+    version, before = coordinator.query(*down, graph=other)
+    other.commit([MOVE])
+    coordinator.render_frame(0)  # the tracer last touched another graph
+    version_after, after = coordinator.query(*down, graph=other)
+    assert (version, version_after) == (0, 1)
+    assert after.t[0] < before.t[0]
+    _, own_hits = coordinator.query(*down)
+    assert own_hits.t[0] == before.t[0]
 
 
 def test_large_commit_buffers_go_through_the_object_store(fresh):
@@ -340,7 +377,7 @@ def test_large_commit_buffers_go_through_the_object_store(fresh):
     assert len(encode_commit(commit)) > INLINE_COMMITS
     frame = coordinator.render_frame(1)
     assert np.array_equal(frame.rgb, reference(graph.state, 1))
-    assert list(coordinator._buffers) == [(0, 1)]  # one put for both tracers
+    assert list(coordinator._buffers) == [(graph.key, 0, 1)]  # one put for both tracers
 
 
 def test_the_assembler_takes_only_what_it_assigned():

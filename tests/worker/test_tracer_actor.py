@@ -16,7 +16,7 @@ from tests.worker.test_replica import studio
 from tracer.commit_codec import encode_commit, encode_state
 from tracer.compile import compile_scene
 from tracer.render import render_image
-from worker.tracer_actor import LinesResult, OutOfSync, Tracer, remote_tracer
+from worker.tracer_actor import MAX_SCENES, LinesResult, OutOfSync, Tracer, remote_tracer
 
 MOVE = {"op": "set_transform", "node": "box-a", "transform": {"translate": [0.5, 1.2, 0.3]}}
 SKY = {"op": "set_sky", "radiance": [0.3, 0.2, 0.1]}
@@ -108,6 +108,39 @@ def test_query_and_info():
     )
 
 
+def test_scenes_are_kept_apart_and_the_least_recently_used_is_dropped():
+    """Replicas of several scenes under their keys: each renders its own pixels; past
+    MAX_SCENES the least recently used goes, and a call for it says OutOfSync (have None)."""
+    plain, moved = studio(), SceneGraph(studio())
+    moved.commit([MOVE])
+    tracer = Tracer("t", cpus=2)
+    tracer.sync_snapshot(encode_state(plain), "plain")
+    tracer.sync_snapshot(encode_state(moved.state), "moved")
+    assert tracer.version("plain") == 0 and tracer.version("moved") == 1
+    assert np.array_equal(rendered(tracer, 0, scene="plain"), reference(plain))
+    assert np.array_equal(rendered(tracer, 1, scene="moved"), reference(moved.state))
+    for k in range(MAX_SCENES - 1):  # "plain" was used before "moved": it goes first
+        tracer.sync_snapshot(encode_state(plain), f"other-{k}")
+    assert "plain" not in tracer.info().scenes and tracer.version("moved") == 1
+    lost = tracer.render(0, 0, [], None, None, 0, 24, scene="plain")
+    assert isinstance(lost, OutOfSync) and (lost.scene, lost.have) == ("plain", None)
+
+
+def test_query_reaches_the_version_it_asks_for():
+    """A query at a version the tracer does not hold yet applies the commits first; one it
+    cannot reach answers OutOfSync."""
+    graph = SceneGraph(studio())
+    tracer = Tracer("q", cpus=1)
+    tracer.sync_snapshot(encode_state(graph.state), "g")
+    down = ([[0.5, 3.5, 0.3]], [[0.0, -1.0, 0.0]])  # straight down onto box-a once it moved
+    before = tracer.query(*down, version=0, scene="g")
+    commit = graph.commit([MOVE])
+    after = tracer.query(*down, version=1, scene="g", commits=[encode_commit(commit)])
+    assert before.node[0] != after.node[0] and after.t[0] < before.t[0]
+    missing = tracer.query(*down, version=5, scene="g")
+    assert isinstance(missing, OutOfSync) and missing.have == 1
+
+
 # --- as a Ray actor -------------------------------------------------------------------------
 
 
@@ -156,6 +189,19 @@ def test_actor_warm_starts_from_the_shared_kernel_cache(ray_session):
         ray.kill(actor)
 
 
+def when_back(call, seconds: float = 60.0):
+    """``call()`` once the restarting actor takes calls (Ray may answer ActorUnavailableError
+    while the new process starts)."""
+    deadline = time.monotonic() + seconds
+    while True:
+        try:
+            return call()
+        except ray.exceptions.ActorUnavailableError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+
+
 def test_a_restarted_actor_comes_back_empty_and_says_so(ray_session):
     """Killed mid-render, the call fails with RayActorError; Ray restarts the process (new pid
     and incarnation) with no scene, so a render answers OutOfSync until a snapshot comes."""
@@ -169,7 +215,7 @@ def test_a_restarted_actor_comes_back_empty_and_says_so(ray_session):
         ray.kill(actor, no_restart=False)
         with pytest.raises(ray.exceptions.RayActorError):
             ray.get(pending, timeout=60)
-        after = ray.get(actor.info.remote(), timeout=60)
+        after = when_back(lambda: ray.get(actor.info.remote(), timeout=60))
         assert after.pid != before.pid and after.incarnation != before.incarnation
         assert after.version is None
         ray.get(actor.set_delay.remote(0.0))
