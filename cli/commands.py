@@ -41,6 +41,8 @@ def run(args: argparse.Namespace) -> int:
             return 0
         if args.command == "plan":
             return cmd_plan(args)
+        if args.command == "bench":
+            return cmd_bench(args)
         return cmd_info(args)
     except BrokenPipeError:
         raise
@@ -151,6 +153,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from cluster.balance import make_balancer
 
     make_balancer(args.balancer)  # a wrong name fails before Ray starts
+    quality_goal(args)  # bad --target-error / --time-budget combinations fail early too
     state = load_scene(args.scene)
     camera, settings = settings_for(state, args)
     state = dataclasses.replace(state, camera=camera, render=settings)
@@ -162,6 +165,27 @@ def cmd_render(args: argparse.Namespace) -> int:
         outputs = [output.with_name(f"{output.stem}_{f:0{digits}d}{output.suffix}") for f in frames]
     render_through_cluster(state, frames, outputs, args)
     return 0
+
+
+def quality_goal(args: argparse.Namespace, frames: int = 1):
+    """The progressive goal of ``--target-error`` / ``--time-budget`` (None without them);
+    the budget is shared evenly by ``frames``."""
+    from cluster.progressive import DEFAULT_MAX_SPP, Goal
+
+    if args.target_error is None and args.time_budget is None:
+        if args.max_spp is not None:
+            raise UsageError("--max-spp applies with --target-error or --time-budget only")
+        return None
+    if args.spp is not None:
+        raise UsageError(
+            "--spp fixes the samples per pixel; with --target-error or --time-budget the waves "
+            "choose them (cap them with --max-spp)"
+        )
+    max_spp = args.max_spp or DEFAULT_MAX_SPP
+    if max_spp < 2:
+        raise UsageError("--max-spp must be at least 2 (two half buffers of one sample)")
+    budget = None if args.time_budget is None else args.time_budget / frames
+    return Goal(target_error=args.target_error, time_budget=budget, max_spp=max_spp)
 
 
 def frame_selection(state: SceneState, text: str | None) -> list[int] | None:
@@ -248,7 +272,77 @@ def _progress(quiet: bool) -> Progress:
     )
 
 
+def progressive_metadata(progress) -> dict:
+    """What a progressive render adds to an image's metadata."""
+    goal = progress.goal
+    return {
+        "target_error": goal.target_error,
+        "time_budget": goal.time_budget,
+        "max_spp": goal.max_spp,
+        "error_estimate": progress.error,
+        "spp": progress.spp,
+        "waves": len(progress.waves),
+        "stopped": progress.stopped,
+    }
+
+
+def render_progressive_frame(coordinator, goal, frame: int, label: str, quiet: bool):
+    """One frame rendered in waves to ``goal``, with a progress line of spp and error;
+    returns ``(progress, last coordinator frame)``."""
+    from cluster.progressive import render_progressive
+
+    last = []
+    with Progress(
+        TextColumn("{task.description}"),
+        TextColumn("{task.fields[status]}"),
+        TimeElapsedColumn(),
+        console=stderr,
+        disable=quiet,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(label, total=None, status="first wave")
+
+        def on_half(progress, done) -> None:
+            last[:] = [done]
+            if progress.error is not None:
+                bar.update(task, status=f"{progress.spp} spp, est. error {progress.error:.2%}")
+
+        progress = render_progressive(coordinator, goal, frame, on_half=on_half)
+    return progress, last[0]
+
+
+def describe_progressive(progress) -> str:
+    goal = progress.goal
+    target = f" (target {goal.target_error:.2%})" if goal.target_error is not None else ""
+    reason = {
+        "target_error": "target reached",
+        "time_budget": "time budget spent",
+        "max_spp": "--max-spp reached",
+    }[progress.stopped]
+    return (
+        f"{progress.spp} spp in {len(progress.waves)} waves, estimated error "
+        f"{progress.error:.2%}{target}, {reason}"
+    )
+
+
 def render_still(coordinator, output: Path, args: argparse.Namespace) -> None:
+    goal = quality_goal(args)
+    if goal is not None:
+        progress, done = render_progressive_frame(
+            coordinator, goal, 0, Path(args.scene).name, args.quiet
+        )
+        metadata = frame_metadata(done, args, len(done.split))
+        metadata["render"]["spp"] = progress.spp
+        metadata["seconds"] = round(progress.elapsed, 3)
+        metadata["progressive"] = progressive_metadata(progress)
+        write_image(output, progress.image, metadata)
+        if not args.quiet:
+            camera = done.camera
+            stderr.print(
+                f"wrote {output}: {camera.width}x{camera.height}, "
+                f"{describe_progressive(progress)}, {progress.elapsed:.2f} s"
+            )
+        return
     with _progress(args.quiet) as progress:
         task = progress.add_task(Path(args.scene).name, total=1)
         done = coordinator.render_frame(0)
@@ -265,8 +359,35 @@ def render_still(coordinator, output: Path, args: argparse.Namespace) -> None:
         )
 
 
+def render_frames_progressive(coordinator, frames, outputs, args, goal) -> None:
+    """Render an animation frame by frame, each in waves to ``goal``."""
+    written = 0
+    try:
+        for number, path in zip(frames, outputs, strict=True):
+            coordinator.graph.frame_commit(number)
+            label = f"{Path(args.scene).name} frame {number}"
+            progress, done = render_progressive_frame(coordinator, goal, number, label, args.quiet)
+            metadata = frame_metadata(done, args, len(done.split))
+            metadata["render"]["spp"] = progress.spp
+            metadata["seconds"] = round(progress.elapsed, 3)
+            metadata["progressive"] = progressive_metadata(progress)
+            write_image(path, progress.image, metadata)
+            written += 1
+            if not args.quiet:
+                stderr.print(
+                    f"frame {number}: {path.name}, {describe_progressive(progress)}, "
+                    f"{progress.elapsed:.2f} s"
+                )
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(f"interrupted; {written} of {len(frames)} frames written") from None
+
+
 def render_frames(coordinator, frames: list[int], outputs: list[Path], args) -> None:
     """Render an animation frame by frame (pipelined), writing each as it completes."""
+    goal = quality_goal(args, len(frames))
+    if goal is not None:
+        render_frames_progressive(coordinator, frames, outputs, args, goal)
+        return
     written = 0
     start = time.perf_counter()
     idle = []
@@ -297,6 +418,72 @@ def render_frames(coordinator, frames: list[int], outputs: list[Path], args) -> 
             f"{seconds / max(written, 1):.3f} s per frame, mean idle "
             f"{sum(idle) / max(len(idle), 1):.1f} %"
         )
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    """``bench accuracy``: the accuracy study (cli.accuracy), with a progress bar per scene."""
+    from cli.accuracy import DEFAULT_CACHE, REPO_ROOT, StudyOptions, run_study
+    from cli.accuracy_report import write_report
+
+    root = REPO_SCENES
+    available = {path.parent.name: path for path in sample_scene_files(root)}
+    names = args.scenes or sorted(available)
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise UsageError(
+            f"--scenes: no sample scene {', '.join(unknown)} (have: {', '.join(sorted(available))})"
+        )
+    quick = args.quick
+
+    def pick(value, default, quick_value):
+        return value if value is not None else quick_value if quick else default
+
+    options = StudyOptions(
+        scenes=tuple(available[n] for n in names),
+        pixels=pick(args.pixels, 128 * 96, 1024),
+        max_spp=pick(args.max_spp, 1024, 64),
+        reference_factor=pick(args.reference_factor, 16, 8),
+        repeats=pick(args.repeats, 5, 2),
+        effect_spp=pick(args.effect_spp, 16, 4),
+        seed=args.seed,
+        threads=args.threads,
+        cache_dir=Path(args.cache) if args.cache else DEFAULT_CACHE,
+    )
+    out = Path(args.out) if args.out else REPO_ROOT / "bench" / "results" / "accuracy"
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out: {out} is not a directory")
+    if not numba_cache.kernels_cached() and not args.quiet:
+        stderr.print("compiling render kernels (first run only; cached afterwards)...")
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=stderr,
+        disable=args.quiet,
+    ) as progress:
+        current = {}
+
+        def on_start(name: str, total: int) -> None:
+            current["name"] = name
+            current["task"] = progress.add_task(name, total=total)
+
+        def on_phase(phase: str) -> None:
+            progress.update(current["task"], description=f"{current['name']}: {phase}")
+
+        def on_samples(n: int) -> None:
+            progress.advance(current["task"], n)
+
+        results, images = run_study(options, on_start, on_samples, on_phase)
+        for task in progress.tasks:
+            progress.update(task.id, completed=task.total)
+    command = " ".join(["tilerender", *getattr(args, "argv", ["bench", "accuracy"])])
+    docs_page = REPO_ROOT / "docs" / "accuracy.md" if args.docs else None
+    written = write_report(results, images, out, docs_page, command)
+    if not args.quiet:
+        stderr.print(f"wrote {len(written)} files into {out}" + (" and docs/" if args.docs else ""))
+    return 0
 
 
 def sample_scene_files(root: Path) -> list[Path]:

@@ -40,6 +40,9 @@ examples:
   tilerender info scenes/cornell-box/scene.json
   tilerender plan scenes/cornell-box/scene.json
   tilerender render scenes/cornell-box/scene.json -o ao.png --integrator ao
+  tilerender render scenes/cornell-box/scene.json -o c.exr --target-error 0.02
+  tilerender render scenes/studio/scene.json -o s.png --frames 0 --time-budget 10
+  tilerender bench accuracy --scenes cornell-box --pixels 4096 --max-spp 256
   tilerender schema > scene-schema.json"""
 
 
@@ -76,6 +79,23 @@ def non_negative_int(text: str) -> int:
     return value
 
 
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+    return value
+
+
+def power_of_two(text: str) -> int:
+    value = positive_int(text)
+    if value < 2 or value & (value - 1):
+        raise argparse.ArgumentTypeError(f"must be a power of two, at least 2, got {value}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="tilerender",
@@ -105,6 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
         "extension (out.png -> out_0000.png, out_0001.png, ...)",
     )
     add_render_options(render)
+    add_quality_options(render)
     add_cluster_options(render)
 
     samples = sub.add_parser(
@@ -120,6 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     samples.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
     add_serve_parser(sub)
+    add_bench_parser(sub)
 
     info = sub.add_parser("info", help="describe a scene: geometry, materials, lights, camera")
     info.add_argument("scene", metavar="SCENE")
@@ -218,6 +240,90 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
+def add_quality_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--target-error",
+        type=positive_float,
+        metavar="E",
+        help="render in waves until the estimated relative error (RMS, e.g. 0.01 = 1%%; "
+        "docs/accuracy.md) is at most E; instead of --spp",
+    )
+    parser.add_argument(
+        "--time-budget",
+        type=positive_float,
+        metavar="S",
+        help="render in waves for at most about S seconds (shared evenly by an animation's "
+        "frames); with --target-error, whichever comes first",
+    )
+    parser.add_argument(
+        "--max-spp",
+        type=positive_int,
+        metavar="N",
+        help="with --target-error or --time-budget: stop at N samples per pixel (default 65536)",
+    )
+
+
+def add_bench_parser(sub) -> None:
+    bench = sub.add_parser(
+        "bench",
+        help="run a study of the renderer (accuracy against time)",
+        description="Studies that measure the renderer; see bench/README.md.",
+    )
+    studies = bench.add_subparsers(dest="study", metavar="STUDY", parser_class=_Parser)
+    studies.required = True
+    accuracy = studies.add_parser(
+        "accuracy",
+        help="error against a reference vs time: spp, depth, integrators, roulette, plan",
+        description="For each sample scene (small images): sweep spp 1..MAX, max depth 1-16, "
+        "the integrators, Russian roulette and the effect plan; measure the error against one "
+        "reference per scene (relative MSE, RMSE, PSNR, SSIM, FLIP) and the time; the cost per "
+        "effect (Reiter eq. 5.1); time to quality; the online error estimate's calibration. "
+        "Writes accuracy.json, report.md and PNG plots into --out (docs/accuracy.md).",
+    )
+    accuracy.add_argument(
+        "--scenes", nargs="+", metavar="NAME", help="scene folders under scenes/ (default: all)"
+    )
+    accuracy.add_argument(
+        "--pixels", type=positive_int, help="about this many pixels per image (default 12288)"
+    )
+    accuracy.add_argument(
+        "--max-spp", type=power_of_two, help="largest spp of the sweep (default 1024)"
+    )
+    accuracy.add_argument(
+        "--reference-factor",
+        type=positive_int,
+        help="our own references take this many times --max-spp (default 16)",
+    )
+    accuracy.add_argument(
+        "--repeats", type=positive_int, help="rounds of the effect-cost timings (default 5)"
+    )
+    accuracy.add_argument(
+        "--effect-spp", type=positive_int, help="spp of one effect-cost render (default 16)"
+    )
+    accuracy.add_argument("--seed", type=non_negative_int, default=0, help="(default 0)")
+    accuracy.add_argument("--threads", type=positive_int, help="render threads (default: all)")
+    accuracy.add_argument(
+        "--quick",
+        action="store_true",
+        help="a check that it works: 1024 pixels, 64 spp, references at 8x, 2 rounds "
+        "(explicit options win)",
+    )
+    accuracy.add_argument(
+        "--out",
+        metavar="DIR",
+        help="where the report goes (default: bench/results/accuracy)",
+    )
+    accuracy.add_argument(
+        "--docs",
+        action="store_true",
+        help="also write docs/accuracy.md (between its report markers) and docs/accuracy/*.png",
+    )
+    accuracy.add_argument(
+        "--cache", metavar="DIR", help="reference cache (default: bench/results/accuracy-cache)"
+    )
+    accuracy.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
 def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) -> None:
     from cluster.balance import BALANCERS  # light: numpy only
 
@@ -252,6 +358,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tilerender`` console script."""
     try:
         args = build_parser().parse_args(argv)
+        args.argv = list(sys.argv[1:] if argv is None else argv)
         from cli import commands  # heavy imports (numba, trimesh) only once the line parses
 
         return commands.run(args)

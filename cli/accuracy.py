@@ -1,0 +1,570 @@
+"""The accuracy study behind ``tilerender bench accuracy``: what accuracy costs in time.
+
+Every scene is rendered small (about ``pixels`` pixels, a whole fraction of its own size) in
+this process, and every image is compared with the scene's one reference
+(:mod:`cli.accuracy_reference`), so bias shows as error:
+
+1. **Sweep.** Each configuration (:func:`configurations`: integrators, depths, Russian roulette
+   and the effect plan on and off) takes samples 1, 2, 4, ... ``max_spp`` in doubling waves
+   over disjoint sample ranges; the configurations take turns wave by wave (slow drifts of a
+   shared machine hit them alike). After each wave the mean so far is measured: relative MSE,
+   RMSE, PSNR, SSIM and FLIP (:func:`measure`), against the seconds and kernel work spent.
+2. **Effect costs** after Reiter's eq. 5.1 (:func:`effect_costs`).
+3. **Time to quality**: seconds to reach a relative MSE (:func:`time_to`).
+4. **Calibration** of the online error estimate against the true error (:func:`calibration`).
+
+:func:`run_study` returns everything as JSON-ready data plus the images the report shows;
+:mod:`cli.accuracy_report` writes the report.
+"""
+
+import math
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from cli.accuracy_reference import (
+    Reference,
+    independent_reference,
+    own_reference,
+    reference_settings,
+)
+from tracer import effects
+from tracer import scene_format as fmt
+from tracer.compile import CompiledScene, compile_scene
+from tracer.effects import EffectPlan, effect_plan
+from tracer.error_estimate import (
+    estimate_rel_error,
+    noise_floor,
+    psnr,
+    rel_mse,
+    rel_mse_terms,
+    rmse,
+    to_display,
+)
+from tracer.loader import load_scene
+from tracer.render import render_image
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_CACHE = REPO_ROOT / "bench" / "results" / "accuracy-cache"
+TARGETS = (1e-2, 1e-3, 1e-4)
+"""Relative MSEs whose time the study reports (relative RMS errors of 10%, 3.2% and 1%)."""
+STRIP_SPP = (1, 4, 16, 64, 256)
+"""Sample counts of the default configuration shown beside the reference in image strips."""
+DEFAULT_CONFIG = "path"
+LAW_SLOPE = (-1.25, -0.75)
+"""Slopes of log relative MSE against log spp that count as following the 1/N law (the error
+as 1/sqrt(N)) when a target lies beyond the sweep and is extrapolated."""
+
+
+@dataclass(frozen=True)
+class StudyOptions:
+    scenes: tuple[Path, ...]
+    """Scene files (a folder's scene.json or its glTF file)."""
+    pixels: int = 128 * 96
+    """About this many pixels per image (see :func:`study_size`)."""
+    max_spp: int = 1024
+    reference_factor: int = 16
+    """Our own references take ``reference_factor x max_spp`` samples per pixel."""
+    reference_passes: int = 16
+    effect_spp: int = 16
+    """Samples per pixel of one timed render of the effect-cost table."""
+    repeats: int = 5
+    """Rounds of the effect-cost table (the median is reported)."""
+    seed: int = 0
+    threads: int | None = None
+    cache_dir: Path = DEFAULT_CACHE
+    flip_every: int = 2
+    """FLIP (the slowest metric) at every ``flip_every``-th sweep level and the last."""
+
+    def __post_init__(self) -> None:
+        if self.max_spp < 2 or self.max_spp & (self.max_spp - 1):
+            raise ValueError(f"max_spp must be a power of two >= 2, got {self.max_spp}")
+        if self.pixels < 64:
+            raise ValueError(f"pixels must be at least 64, got {self.pixels}")
+        for name in ("reference_factor", "reference_passes", "effect_spp", "repeats"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1")
+
+
+@dataclass(frozen=True)
+class Config:
+    """One configuration of the sweep: settings changes and effects dropped from the plan."""
+
+    name: str
+    label: str
+    changes: dict = field(default_factory=dict)
+    drop: int = 0
+    """Effect flags removed from the scene's plan (``tracer.effects``)."""
+
+    def settings(self, base: fmt.RenderSettings) -> fmt.RenderSettings:
+        return fmt.override(base, **self.changes)
+
+    def plan(self, scene: CompiledScene, settings: fmt.RenderSettings) -> EffectPlan:
+        plan = effect_plan(scene, settings)
+        if not self.drop:
+            return plan
+        reasons = {**plan.reasons, **{n: "dropped by the study" for n in names(self.drop)}}
+        return EffectPlan(plan.flags & ~self.drop, reasons)
+
+
+def names(flags: int) -> list[str]:
+    """Names of the effect flags in ``flags``."""
+    return [name for name, bit in effects.EFFECTS.items() if flags & bit]
+
+
+def configurations(base: fmt.RenderSettings) -> list[Config]:
+    """The sweep's configurations around the scene's own settings ``base`` (the ``path``
+    configuration): path tracing at depths 1 to 16, without Russian roulette, with every effect
+    (no plan), with BSDF sampling only (no light samples, so no MIS); direct light; Whitted;
+    ambient occlusion."""
+    depth = base.max_depth
+    configs = [Config(DEFAULT_CONFIG, f"path, NEE + MIS, depth {depth} (the scene's)")]
+    configs += [
+        Config(
+            f"path-d{d}", f"path, depth {d}", {"max_depth": d, "rr_depth": min(base.rr_depth, d)}
+        )
+        for d in (1, 2, 3, 4, 8, 16)
+        if d != depth
+    ]
+    configs += [
+        Config("path-no-rr", "path, no Russian roulette", {"rr_depth": depth}),
+        Config("path-no-plan", "path, every effect (no effect plan)", {"effect_plan": False}),
+        Config(
+            "path-bsdf",
+            "path, BSDF sampling only (no light samples, no MIS)",
+            drop=effects.LIGHT_SAMPLES | effects.SHADOWS,
+        ),
+        Config("direct", "direct light (NEE + MIS, two vertices)", {"integrator": "direct"}),
+        Config("whitted", "Whitted (direct light, specular recursion)", {"integrator": "whitted"}),
+        Config("ao", "ambient occlusion (not radiance: all bias)", {"integrator": "ao"}),
+    ]
+    return configs
+
+
+def study_size(width: int, height: int, pixels: int) -> tuple[int, int]:
+    """The scene's image size divided by the whole factor ``k`` that brings it closest to
+    ``pixels`` (an independent reference at the scene's size then averages ``k x k`` blocks);
+    the size scaled to ``pixels`` when no factor divides both sides within 1.5x of it."""
+    best = None
+    for k in range(1, min(width, height) + 1):
+        if width % k or height % k:
+            continue
+        miss = abs(math.log(width * height / (k * k) / pixels))
+        if best is None or miss < best[0]:
+            best = (miss, k)
+    if best is not None and best[0] <= math.log(1.5):
+        return width // best[1], height // best[1]
+    scale = math.sqrt(pixels / (width * height))
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
+def spp_levels(max_spp: int) -> list[int]:
+    """1, 2, 4, ..., ``max_spp``."""
+    return [1 << k for k in range(max_spp.bit_length())]
+
+
+# --- metrics -----------------------------------------------------------------------------------
+
+
+def measure(image: np.ndarray, ref: Reference, floor: float, flip: bool) -> dict:
+    """Every metric of ``image`` against the reference: ``rel_mse`` (the reference's noise floor
+    subtracted), ``rel_mse_raw``, ``rel_mse_se`` (its standard error over pixels), ``rmse``
+    (linear), ``psnr``, ``ssim`` (display images) and
+    ``flip`` (LDR FLIP of the display images, or None when not asked for)."""
+    from skimage.metrics import structural_similarity
+
+    terms = rel_mse_terms(image, ref.mean).mean(axis=2)
+    raw = float(terms.mean())
+    shown, shown_ref = to_display(image), to_display(ref.mean)
+    side = min(image.shape[:2])
+    window = min(7, side if side % 2 else side - 1)
+    return {
+        "rel_mse": raw - floor,
+        "rel_mse_raw": raw,
+        "rel_mse_se": float(terms.std(ddof=1) / math.sqrt(terms.size)),
+        "rmse": rmse(image, ref.mean),
+        "psnr": psnr(image, ref.mean),
+        "ssim": float(
+            structural_similarity(shown, shown_ref, channel_axis=2, data_range=1.0, win_size=window)
+        ),
+        "flip": flip_error(shown, shown_ref) if flip else None,
+    }
+
+
+def flip_error(shown: np.ndarray, shown_ref: np.ndarray) -> float:
+    """Mean LDR FLIP error of two sRGB display images in [0, 1]."""
+    import flip_evaluator
+
+    _, mean, _ = flip_evaluator.evaluate(
+        shown_ref.astype(np.float32), shown.astype(np.float32), "LDR", applyMagma=False
+    )
+    return float(mean)
+
+
+def time_to(levels: list[dict], target: float) -> dict:
+    """Seconds and samples per pixel at which ``levels`` (a sweep's records, in order) first
+    reach a relative MSE of ``target``: interpolated in log-log between the levels around it
+    (``how``: ``measured``); past the last level, extrapolated along the 1/N law when the last
+    three levels follow it (``extrapolated``: the samples the law needs, at the last level's
+    seconds per sample); else ``not reached`` (seconds None)."""
+    previous = None
+    for level in levels:
+        if level["rel_mse"] <= target:
+            if previous is None or previous["rel_mse"] <= 0.0 or level["rel_mse"] <= 0.0:
+                return {"seconds": level["seconds"], "spp": level["spp"], "how": "measured"}
+            f = math.log(previous["rel_mse"] / target) / math.log(
+                previous["rel_mse"] / level["rel_mse"]
+            )
+            return {
+                "seconds": previous["seconds"] * (level["seconds"] / previous["seconds"]) ** f,
+                "spp": previous["spp"] * (level["spp"] / previous["spp"]) ** f,
+                "how": "measured",
+            }
+        previous = level
+    slope = law_slope(levels[-3:])
+    if slope is not None and LAW_SLOPE[0] <= slope <= LAW_SLOPE[1]:
+        last = levels[-1]
+        factor = last["rel_mse"] / target
+        return {
+            "seconds": last["seconds"] * factor,
+            "spp": last["spp"] * factor,
+            "how": "extrapolated",
+        }
+    return {"seconds": None, "spp": None, "how": "not reached"}
+
+
+def law_slope(levels: list[dict]) -> float | None:
+    """Least-squares slope of log relative MSE against log spp (None if undefined); -1 is
+    the Monte Carlo law (error as 1/sqrt(N))."""
+    points = [(lv["spp"], lv["rel_mse"]) for lv in levels if lv["rel_mse"] > 0.0]
+    if len(points) < 2:
+        return None
+    x = np.log([p[0] for p in points])
+    y = np.log([p[1] for p in points])
+    return float(np.polyfit(x, y, 1)[0])
+
+
+# --- the parts of a scene's study --------------------------------------------------------------
+
+
+@dataclass
+class _Run:
+    """A configuration's running sums during the sweep."""
+
+    config: Config
+    settings: fmt.RenderSettings
+    plan: EffectPlan
+    total: np.ndarray
+    spp: int = 0
+    seconds: float = 0.0
+    work: int = 0
+    levels: list = field(default_factory=list)
+
+
+def sweep(
+    scene: CompiledScene,
+    camera: fmt.Camera,
+    base: fmt.RenderSettings,
+    ref: Reference,
+    floor: float,
+    options: StudyOptions,
+    on_samples: Callable[[int], None],
+) -> tuple[dict, dict[int, np.ndarray]]:
+    """Run every configuration through the spp levels, interleaved wave by wave; returns the
+    per-configuration records and the default configuration's images at ``STRIP_SPP``."""
+    runs = []
+    for config in configurations(base):
+        settings = config.settings(base)
+        plan = config.plan(scene, settings)
+        runs.append(_Run(config, settings, plan, np.zeros((camera.height, camera.width, 3))))
+        tiny = fmt.override(camera, width=1, height=1)  # compile or load the kernel, untimed
+        render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=options.threads)
+    strips = {}
+    levels = spp_levels(options.max_spp)
+    for index, level in enumerate(levels):
+        for run in runs:
+            n = level - run.spp
+            start = time.perf_counter()
+            rgb, cost = render_image(
+                scene,
+                camera,
+                fmt.override(run.settings, spp=n),
+                sample_start=run.spp,
+                threads=options.threads,
+                plan=run.plan,
+            )
+            run.seconds += time.perf_counter() - start
+            run.total += rgb.astype(np.float64) * n
+            run.spp = level
+            run.work += int(cost.sum())
+            image = run.total / level
+            flip = index % options.flip_every == 0 or index == len(levels) - 1
+            record = {"spp": level, "seconds": run.seconds, "work": run.work}
+            run.levels.append(record | measure(image, ref, floor, flip))
+            if run.config.name == DEFAULT_CONFIG and level in STRIP_SPP:
+                strips[level] = image.astype(np.float32)
+            on_samples(n)
+    results = {
+        run.config.name: {
+            "label": run.config.label,
+            "settings": {
+                k: v
+                for k, v in run.settings.model_dump(mode="json").items()
+                if k in ("integrator", "max_depth", "rr_depth", "effect_plan")
+            },
+            "effects": run.plan.names(),
+            "levels": run.levels,
+            "time_to": {f"{t:g}": time_to(run.levels, t) for t in TARGETS},
+        }
+        for run in runs
+    }
+    return results, strips
+
+
+EFFECT_STAGES = (
+    ("diffuse", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS | effects.INDIRECT),
+    ("diffuse + shadows", "whitted", effects.MATERIAL_EFFECTS | effects.INDIRECT),
+    ("diffuse + reflection, refraction", "whitted", effects.SHADOWS | effects.INDIRECT),
+    ("diffuse + shadows + indirect", "path", effects.MATERIAL_EFFECTS),
+    ("all effects", "path", 0),
+)
+"""Reiter's eq. 5.1 stages: (name, integrator, effects dropped from the scene's plan). Without
+material effects every surface is Lambertian. Indirect light is measured on top of shadows,
+since every indirect path vertex also shoots a shadow ray."""
+
+
+def effect_parts(median: dict[str, float]) -> dict[str, float]:
+    """Reiter's eq. 5.1 from the stages' median seconds: each part is the time an effect adds
+    to the stage below it."""
+    d = median["diffuse"]
+    return {
+        "diffuse": d,
+        "shadows": median["diffuse + shadows"] - d,
+        "reflection, refraction": median["diffuse + reflection, refraction"] - d,
+        "indirect": median["diffuse + shadows + indirect"] - median["diffuse + shadows"],
+    }
+
+
+def effect_costs(
+    scene: CompiledScene,
+    camera: fmt.Camera,
+    base: fmt.RenderSettings,
+    ref: Reference,
+    floor: float,
+    options: StudyOptions,
+    on_samples: Callable[[int], None],
+) -> dict:
+    """Time the stages side by side (``repeats`` interleaved rounds of ``effect_spp`` samples,
+    after one untimed warm-up each), split the time into parts by eq. 5.1 and compare their
+    sum with the measured time of all effects. Each stage's image (all rounds' samples) is
+    also measured against the reference: what an effect adds to accuracy."""
+    stages = []
+    for name, integrator, drop in EFFECT_STAGES:
+        settings = fmt.override(base, integrator=integrator, spp=options.effect_spp)
+        plan = Config(name, name, drop=drop).plan(scene, settings)
+        tiny = fmt.override(camera, width=1, height=1)
+        render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=options.threads)
+        stages.append((name, settings, plan, np.zeros((camera.height, camera.width, 3)), []))
+    for round_index in range(options.repeats):
+        for _, settings, plan, total, seconds in stages:
+            start = time.perf_counter()
+            rgb, _ = render_image(
+                scene,
+                camera,
+                settings,
+                sample_start=round_index * options.effect_spp,
+                threads=options.threads,
+                plan=plan,
+            )
+            seconds.append(time.perf_counter() - start)
+            total += rgb
+            on_samples(options.effect_spp)
+    median = {name: float(np.median(seconds)) for name, _, _, _, seconds in stages}
+    parts = effect_parts(median)
+    total_seconds = median["all effects"]
+    return {
+        "spp": options.effect_spp,
+        "repeats": options.repeats,
+        "stages": [
+            {
+                "name": name,
+                "integrator": settings.integrator,
+                "effects": plan.names(),
+                "seconds": seconds,
+                "median_seconds": median[name],
+                "rel_mse": rel_mse(total / options.repeats, ref.mean) - floor,
+            }
+            for name, settings, plan, total, seconds in stages
+        ],
+        "parts": parts,
+        "sum_of_parts": sum(parts.values()),
+        "total": total_seconds,
+        "ratio": sum(parts.values()) / total_seconds,
+    }
+
+
+def calibration(
+    scene: CompiledScene,
+    camera: fmt.Camera,
+    ref: Reference,
+    floor: float,
+    options: StudyOptions,
+    on_samples: Callable[[int], None],
+) -> list[dict]:
+    """The online estimate against the true error: the reference's own settings (so the
+    render is unbiased against it) with another seed, two independent halves A and B that
+    double together; at each total spp the estimate from A and B and the true relative error
+    of their mean (the reference's noise floor subtracted)."""
+    settings = fmt.override(ref.settings, seed=options.seed + 1)
+    sums = [np.zeros((camera.height, camera.width, 3)) for _ in range(2)]
+    half = 0
+    records = []
+    for level in spp_levels(options.max_spp)[1:]:
+        n = level // 2 - half
+        for k in range(2):
+            start = 2 * half + k * n
+            rgb, _ = render_image(
+                scene,
+                camera,
+                fmt.override(settings, spp=n),
+                sample_start=start,
+                threads=options.threads,
+            )
+            sums[k] += rgb.astype(np.float64) * n
+            on_samples(n)
+        half += n
+        a, b = sums[0] / half, sums[1] / half
+        true_mse = rel_mse(0.5 * (a + b), ref.mean) - floor
+        records.append(
+            {
+                "spp": level,
+                "estimated": estimate_rel_error(a, b),
+                "true": math.sqrt(max(true_mse, 0.0)),
+            }
+        )
+    return records
+
+
+# --- one scene, and the whole study ------------------------------------------------------------
+
+
+def scene_name(path: Path) -> str:
+    """A scene's name: its folder's."""
+    return path.parent.name
+
+
+def planned_spp(options: StudyOptions, configs: int, own_reference_needed: bool) -> int:
+    """Samples per pixel a scene's study renders (the progress bar's total)."""
+    reference = options.reference_factor * options.max_spp if own_reference_needed else 0
+    effect = len(EFFECT_STAGES) * options.repeats * options.effect_spp
+    return reference + configs * options.max_spp + effect + options.max_spp - 2
+
+
+def study_scene(
+    path: Path,
+    options: StudyOptions,
+    on_start: Callable[[str, int], None],
+    on_samples: Callable[[int], None],
+    on_phase: Callable[[str], None],
+) -> tuple[dict, dict]:
+    """The whole study of one scene: ``(results, images)``; ``images`` holds the reference and
+    the strip images. ``on_start(name, total_spp)`` opens its progress, ``on_phase`` names
+    each part as it starts."""
+    name = scene_name(path)
+    scene = compile_scene(load_scene(path))
+    width, height = study_size(scene.camera.width, scene.camera.height, options.pixels)
+    camera = fmt.override(scene.camera, width=width, height=height)
+    base = fmt.override(scene.render, seed=options.seed)
+    ref = independent_reference(path.parent, width, height, base)
+    configs = configurations(base)
+    on_start(name, planned_spp(options, len(configs), ref is None))
+    if ref is None:
+        on_phase("reference")
+        ref = own_reference(
+            scene,
+            path.parent,
+            camera,
+            reference_settings(base, options.seed),
+            options.reference_factor * options.max_spp,
+            options.reference_passes,
+            options.cache_dir,
+            options.threads,
+            on_samples,
+        )
+    floor = noise_floor(ref.mean, ref.var_of_mean)
+    on_phase("sweep")
+    configs_result, strips = sweep(scene, camera, base, ref, floor, options, on_samples)
+    on_phase("effect costs")
+    costs = effect_costs(scene, camera, base, ref, floor, options, on_samples)
+    on_phase("calibration")
+    calib = calibration(scene, camera, ref, floor, options, on_samples)
+    result = {
+        "scene": str(path.relative_to(REPO_ROOT)) if path.is_relative_to(REPO_ROOT) else str(path),
+        "size": [width, height],
+        "triangles": scene.stats.triangles,
+        "reference": {
+            "source": ref.source,
+            "detail": ref.detail,
+            "spp": ref.spp,
+            "max_depth": ref.settings.max_depth,
+            "seconds": ref.seconds,
+            "noise_floor": floor,
+        },
+        "configs": configs_result,
+        "effects": costs,
+        "calibration": calib,
+    }
+    return result, {"reference": ref.mean.astype(np.float32), "strips": strips}
+
+
+def machine() -> dict:
+    """What the timings depend on besides the code."""
+    from importlib.metadata import version
+
+    return {
+        "cpus": len(os.sched_getaffinity(0))
+        if hasattr(os, "sched_getaffinity")
+        else os.cpu_count(),
+        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numba": version("numba"),
+    }
+
+
+def run_study(
+    options: StudyOptions,
+    on_start: Callable[[str, int], None] = lambda name, total: None,
+    on_samples: Callable[[int], None] = lambda n: None,
+    on_phase: Callable[[str], None] = lambda phase: None,
+) -> tuple[dict, dict]:
+    """Study every scene of ``options``; returns ``(results, images by scene)``."""
+    started = time.perf_counter()
+    results = {"options": options_json(options), "machine": machine(), "scenes": {}}
+    images = {}
+    for path in options.scenes:
+        result, scene_images = study_scene(path, options, on_start, on_samples, on_phase)
+        results["scenes"][scene_name(path)] = result
+        images[scene_name(path)] = scene_images
+    results["machine"]["load_average_end"] = machine()["load_average"]
+    results["seconds"] = time.perf_counter() - started
+    return results, images
+
+
+def options_json(options: StudyOptions) -> dict:
+    return {
+        "scenes": [str(p) for p in options.scenes],
+        "pixels": options.pixels,
+        "max_spp": options.max_spp,
+        "reference_factor": options.reference_factor,
+        "reference_passes": options.reference_passes,
+        "effect_spp": options.effect_spp,
+        "repeats": options.repeats,
+        "seed": options.seed,
+        "threads": options.threads,
+    }

@@ -1,0 +1,396 @@
+"""The accuracy study's report: JSON, a markdown page, PNG plots and image strips.
+
+``write_report`` writes ``accuracy.json``, ``report.md`` and the PNGs into one folder; with
+``docs`` it also puts the PNGs in ``docs/accuracy/`` and the markdown into ``docs/accuracy.md``
+between the ``REPORT_START`` and ``REPORT_END`` markers (the hand-written guide around them is
+kept).
+"""
+
+import datetime as dt
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from cli.accuracy import DEFAULT_CONFIG, TARGETS
+from tracer.error_estimate import to_display
+
+REPORT_START = "<!-- accuracy-report:start -->"
+REPORT_END = "<!-- accuracy-report:end -->"
+CALIBRATION_BAND = 0.3
+"""The calibration goal: estimated within +-30% of the true relative error."""
+
+
+def write_report(
+    results: dict, images: dict, out_dir: Path, docs_page: Path | None = None, command: str = ""
+) -> list[Path]:
+    """Write everything into ``out_dir`` (and into ``docs_page`` and the folder beside it named
+    after it, when given); returns the files written."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = [out_dir / "accuracy.json"]
+    written[0].write_text(json.dumps(results, indent=2, default=_json_default) + "\n")
+    image_dirs = [out_dir]
+    if docs_page is not None:
+        image_dirs.append(docs_page.with_suffix(""))
+    for folder in image_dirs:
+        folder.mkdir(parents=True, exist_ok=True)
+        written += write_plots(results, images, folder)
+    (out_dir / "report.md").write_text(markdown(results, ".", command))
+    written.append(out_dir / "report.md")
+    if docs_page is not None:
+        relative = docs_page.with_suffix("").name
+        splice(docs_page, markdown(results, relative, command))
+        written.append(docs_page)
+    return written
+
+
+def _json_default(value):
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
+def splice(page: Path, report: str) -> None:
+    """Replace what lies between the report markers of ``page`` (append them if missing)."""
+    text = page.read_text() if page.is_file() else ""
+    block = f"{REPORT_START}\n{report.rstrip()}\n{REPORT_END}"
+    if REPORT_START in text and REPORT_END in text:
+        head, rest = text.split(REPORT_START, 1)
+        _, tail = rest.split(REPORT_END, 1)
+        text = head + block + tail
+    else:
+        text = text.rstrip() + ("\n\n" if text else "") + block + "\n"
+    page.write_text(text)
+
+
+# --- plots -------------------------------------------------------------------------------------
+
+
+def write_plots(results: dict, images: dict, folder: Path) -> list[Path]:
+    """Every PNG: error against time and an image strip per scene, the calibration and the
+    effect costs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    written = []
+    for name, scene in results["scenes"].items():
+        written.append(error_vs_time_plot(name, scene, folder / f"error-vs-time-{name}.png"))
+        written.append(strip_plot(name, scene, images[name], folder / f"strip-{name}.png"))
+    written.append(calibration_plot(results, folder / "calibration.png"))
+    written.append(effect_costs_plot(results, folder / "effect-costs.png"))
+    return written
+
+
+def relative_error(rel_mse: float) -> float:
+    """The relative RMS error of a relative MSE (clipped just above zero for log plots)."""
+    return math.sqrt(max(rel_mse, 1e-12))
+
+
+def error_vs_time_plot(name: str, scene: dict, path: Path) -> Path:
+    """Log-log relative error against seconds, one line per configuration, with a 1/sqrt(t)
+    guide through the default configuration's middle and the targets as dotted lines."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8.5, 5.0))
+    ax.set_prop_cycle(color=plt.get_cmap("tab20").colors)
+    for config, data in scene["configs"].items():
+        t = [lv["seconds"] for lv in data["levels"]]
+        e = [relative_error(lv["rel_mse"]) for lv in data["levels"]]
+        style = {"linewidth": 2.5, "color": "black"} if config == DEFAULT_CONFIG else {}
+        ax.plot(t, e, marker="o", markersize=3, label=config, **style)
+    default = scene["configs"][DEFAULT_CONFIG]["levels"]
+    middle = default[len(default) // 2]
+    t0, e0 = middle["seconds"], relative_error(middle["rel_mse"])
+    guide_t = np.geomspace(default[0]["seconds"], default[-1]["seconds"], 20)
+    ax.plot(guide_t, e0 * np.sqrt(t0 / guide_t), "k--", linewidth=1, label="1/sqrt(t)")
+    for target in TARGETS:
+        ax.axhline(math.sqrt(target), color="grey", linestyle=":", linewidth=1)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("seconds (render time, cumulative)")
+    ax.set_ylabel("relative error (sqrt of relative MSE)")
+    width, height = scene["size"]
+    ax.set_title(f"{name} ({width}x{height}): error against time, 1 to "
+                 f"{default[-1]['spp']} spp")  # fmt: skip
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def strip_plot(name: str, scene: dict, scene_images: dict, path: Path) -> Path:
+    """Crops of the default configuration at each strip spp beside the reference's."""
+    import matplotlib.pyplot as plt
+
+    reference = scene_images["reference"]
+    strips = scene_images["strips"]
+    crop = crop_box(reference)
+    levels = {lv["spp"]: lv for lv in scene["configs"][DEFAULT_CONFIG]["levels"]}
+    panels = [(f"{spp} spp\nimage error {relative_error(levels[spp]['rel_mse']):.1%}", img)
+              for spp, img in sorted(strips.items())]  # fmt: skip
+    panels.append(("reference", reference))
+    fig, axes = plt.subplots(1, len(panels), figsize=(2.0 * len(panels), 2.4))
+    for ax, (title, image) in zip(np.atleast_1d(axes), panels, strict=True):
+        y0, y1, x0, x1 = crop
+        ax.imshow(to_display(image[y0:y1, x0:x1]), interpolation="nearest")
+        ax.set_title(title, fontsize=8)
+        ax.axis("off")
+    fig.suptitle(f"{name}: path ({scene['configs'][DEFAULT_CONFIG]['label']})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def crop_box(reference: np.ndarray) -> tuple[int, int, int, int]:
+    """A square crop of half the shorter side around the most detailed part of the reference
+    (the largest sum of display gradients), so that noise and edges both show."""
+    shown = to_display(reference).mean(axis=2)
+    h, w = shown.shape
+    side = max(8, min(h, w) // 2)
+    detail = np.abs(np.diff(shown, axis=0))[:, :-1] + np.abs(np.diff(shown, axis=1))[:-1]
+    integral = np.pad(detail, ((1, 0), (1, 0))).cumsum(0).cumsum(1)
+    best, box = -1.0, (0, min(h, side), 0, min(w, side))
+    step = max(1, side // 4)
+    for y in range(0, max(1, h - side), step):
+        for x in range(0, max(1, w - side), step):
+            y1, x1 = min(y + side, h - 1), min(x + side, w - 1)
+            total = integral[y1, x1] - integral[y, x1] - integral[y1, x] + integral[y, x]
+            if total > best:
+                best, box = total, (y, min(y + side, h), x, min(x + side, w))
+    return box
+
+
+def calibration_plot(results: dict, path: Path) -> Path:
+    """Estimated against true relative error for every scene and spp, with y = x and the
+    +-30% band."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 5.5))
+    values = []
+    for name, scene in results["scenes"].items():
+        true = [r["true"] for r in scene["calibration"]]
+        est = [r["estimated"] for r in scene["calibration"]]
+        values += true + est
+        ax.plot(true, est, marker="o", markersize=4, linestyle="-", linewidth=0.8, label=name)
+    positive = [v for v in values if v > 0]
+    lo, hi = min(positive) / 1.5, max(positive) * 1.5
+    line = np.geomspace(lo, hi, 10)
+    ax.plot(line, line, "k-", linewidth=1, label="estimate = true")
+    ax.fill_between(line, line * (1 - CALIBRATION_BAND), line * (1 + CALIBRATION_BAND),
+                    color="grey", alpha=0.2, label="+-30%")  # fmt: skip
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlim(lo, hi)
+    ax.set_ylim(lo, hi)
+    ax.set_xlabel("true relative error (against the reference)")
+    ax.set_ylabel("estimated relative error (two half buffers)")
+    ax.set_title("Calibration of the online error estimate (2 to max spp)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def effect_costs_plot(results: dict, path: Path) -> Path:
+    """Stacked bars of Reiter's parts per scene beside the measured all-effects time."""
+    import matplotlib.pyplot as plt
+
+    names = list(results["scenes"])
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(names) + 2), 4.5))
+    x = np.arange(len(names))
+    parts = list(next(iter(results["scenes"].values()))["effects"]["parts"])
+    bottom = np.zeros(len(names))
+    for part in parts:
+        values = np.array([results["scenes"][n]["effects"]["parts"][part] for n in names]) * 1e3
+        ax.bar(x - 0.2, values, 0.4, bottom=bottom, label=part)
+        bottom += values
+    totals = np.array([results["scenes"][n]["effects"]["total"] for n in names]) * 1e3
+    ax.bar(x + 0.2, totals, 0.4, color="black", alpha=0.6, label="all effects (measured)")
+    ax.set_xticks(x, names, rotation=30, ha="right")
+    ax.set_ylabel("milliseconds per render")
+    spp = next(iter(results["scenes"].values()))["effects"]["spp"]
+    ax.set_title(f"Cost per effect after Reiter eq. 5.1 ({spp} spp)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# --- markdown ----------------------------------------------------------------------------------
+
+
+def seconds_text(value: float | None) -> str:
+    if value is None:
+        return "-"
+    if value < 1.0:
+        return f"{value * 1e3:.0f} ms"
+    return f"{value:.1f} s" if value < 100 else f"{value:.0f} s"
+
+
+def time_to_text(entry: dict) -> str:
+    """A time-to-quality entry: ``0.42 s (37 spp)``, ``~12 s (extrapolated)`` or ``-``."""
+    if entry["seconds"] is None:
+        return "not reached"
+    text = f"{seconds_text(entry['seconds'])} ({entry['spp']:.0f} spp)"
+    return text if entry["how"] == "measured" else f"~{text}, extrapolated"
+
+
+def cheapest(scene: dict, target: str) -> tuple[str, dict] | None:
+    """The configuration reaching relative MSE ``target`` in the least time."""
+    reached = [
+        (name, data["time_to"][target])
+        for name, data in scene["configs"].items()
+        if data["time_to"][target]["seconds"] is not None
+    ]
+    return min(reached, key=lambda item: item[1]["seconds"]) if reached else None
+
+
+def markdown(results: dict, image_dir: str, command: str) -> str:
+    """The generated report (markdown), with images under ``image_dir``."""
+    options = results["options"]
+    machine = results["machine"]
+    when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d")
+    lines = [
+        f"Generated on {when} by `{command or 'tilerender bench accuracy'}` in "
+        f"{results['seconds'] / 60:.0f} minutes: about {options['pixels']} pixels per image, "
+        f"1 to {options['max_spp']} spp, seed {options['seed']}. Machine: {machine['cpus']} "
+        f"CPUs, load average {machine['load_average'][0]:.1f} at the start and "
+        f"{machine['load_average_end'][0]:.1f} at the end (a shared machine: times within one "
+        "scene were measured side by side, wave by wave; compare ratios, not absolute "
+        "seconds).",
+        "",
+        "### Time to quality, every scene",
+        "",
+        "Seconds of render time for the default configuration (`path`, the scene's own "
+        "settings) to reach a relative MSE of 1e-2, 1e-3 and 1e-4 (relative errors of 10%, "
+        "3.2% and 1%), and the configuration that reaches 1% error soonest. *Extrapolated*: "
+        "past the sweep's last level along the 1/N law (the last three levels follow it).",
+        "",
+        "| scene | size | reference | relMSE 1e-2 | relMSE 1e-3 | 1% error (1e-4) "
+        "| cheapest to 1% |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, scene in results["scenes"].items():
+        times = scene["configs"][DEFAULT_CONFIG]["time_to"]
+        best = cheapest(scene, "0.0001")
+        best_text = f"`{best[0]}`: {time_to_text(best[1])}" if best else "none"
+        width, height = scene["size"]
+        lines.append(
+            f"| {name} | {width}x{height} | {scene['reference']['source']} | "
+            f"{time_to_text(times['0.01'])} | {time_to_text(times['0.001'])} | "
+            f"{time_to_text(times['0.0001'])} | {best_text} |"
+        )
+    lines += ["", *calibration_section(results, image_dir), ""]
+    lines += [
+        "### Cost per effect (Reiter eq. 5.1)",
+        "",
+        f"![cost per effect]({image_dir}/effect-costs.png)",
+        "",
+        *effect_summary(results),
+        "",
+    ]
+    for name, scene in results["scenes"].items():
+        lines += scene_section(name, scene, image_dir)
+    return "\n".join(lines) + "\n"
+
+
+def calibration_section(results: dict, image_dir: str) -> list[str]:
+    rows = []
+    ratios_all = []
+    for name, scene in results["scenes"].items():
+        ratios = [r["estimated"] / r["true"] for r in scene["calibration"] if r["true"] > 0]
+        ratios_all += ratios
+        inside = sum(abs(r - 1) <= CALIBRATION_BAND for r in ratios)
+        spp = [r["spp"] for r in scene["calibration"]]
+        rows.append(
+            f"| {name} | {spp[0]}-{spp[-1]} | {min(ratios):.2f} | {np.median(ratios):.2f} | "
+            f"{max(ratios):.2f} | {inside}/{len(ratios)} |"
+        )
+    inside_all = sum(abs(r - 1) <= CALIBRATION_BAND for r in ratios_all)
+    return [
+        "### Calibration of the online error estimate",
+        "",
+        f"![calibration]({image_dir}/calibration.png)",
+        "",
+        "Estimated relative error (from two half buffers, no reference) over the true one "
+        "(against the reference, its noise floor removed), for renders with the reference's own "
+        f"settings at every spp from 2 up: {inside_all} of {len(ratios_all)} within +-30%.",
+        "",
+        "| scene | spp | est/true min | median | max | within +-30% |",
+        "|---|---|---|---|---|---|",
+        *rows,
+    ]
+
+
+def effect_summary(results: dict) -> list[str]:
+    lines = [
+        "| scene | diffuse | + shadows | + reflection, refraction | + indirect | sum of parts "
+        "| all effects (measured) | sum / measured |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, scene in results["scenes"].items():
+        costs = scene["effects"]
+        total = costs["total"]
+        cells = [f"{seconds_text(v)} ({v / total:.0%})" for v in costs["parts"].values()]
+        lines.append(
+            f"| {name} | {' | '.join(cells)} | {seconds_text(costs['sum_of_parts'])} | "
+            f"{seconds_text(total)} | {costs['ratio']:.3f} |"
+        )
+    return lines
+
+
+def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
+    ref = scene["reference"]
+    width, height = scene["size"]
+    max_spp = scene["configs"][DEFAULT_CONFIG]["levels"][-1]["spp"]
+    lines = [
+        f"### {name}",
+        "",
+        f"{width}x{height} pixels, {scene['triangles']} triangles. Reference: {ref['detail']}, "
+        f"max_depth {ref['max_depth']}; its noise floor (relative MSE it adds, subtracted "
+        f"from every relative MSE below) is {ref['noise_floor']:.2e}.",
+        "",
+        f"![{name}: error against time]({image_dir}/error-vs-time-{name}.png)",
+        "",
+        f"![{name}: image strip]({image_dir}/strip-{name}.png)",
+        "",
+        f"At {max_spp} spp (relative MSE, RMSE in linear radiance, PSNR/SSIM/FLIP of the sRGB "
+        "display images), work in millions of BVH node visits and triangle tests, and the time "
+        "to reach a relative MSE of 1e-2 and 1e-3:",
+        "",
+        "| configuration | seconds | work (M) | relMSE | RMSE | PSNR | SSIM | FLIP "
+        "| to 1e-2 | to 1e-3 |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for config, data in scene["configs"].items():
+        last = data["levels"][-1]
+        flip = "-" if last["flip"] is None else f"{last['flip']:.3f}"
+        lines.append(
+            f"| `{config}`: {data['label']} | {seconds_text(last['seconds'])} | "
+            f"{last['work'] / 1e6:.0f} | {last['rel_mse']:.2e} | {last['rmse']:.4f} | "
+            f"{last['psnr']:.1f} | {last['ssim']:.3f} | {flip} | "
+            f"{time_to_text(data['time_to']['0.01'])} | {time_to_text(data['time_to']['0.001'])} |"
+        )
+    costs = scene["effects"]
+    lines += [
+        "",
+        f"Effect costs ({costs['spp']} spp, median of {costs['repeats']} interleaved rounds; "
+        "relative MSE of each stage's image over all rounds):",
+        "",
+        "| stage | integrator | seconds | relMSE |",
+        "|---|---|---|---|",
+    ]
+    for stage in costs["stages"]:
+        lines.append(
+            f"| {stage['name']} | {stage['integrator']} | {seconds_text(stage['median_seconds'])} "
+            f"| {stage['rel_mse']:.2e} |"
+        )
+    lines.append("")
+    return lines
