@@ -149,7 +149,7 @@ def configurations(base: fmt.RenderSettings) -> list[Config]:
 def study_size(width: int, height: int, pixels: int) -> tuple[int, int]:
     """The scene's image size divided by the whole factor ``k`` that brings it closest to
     ``pixels`` (an independent reference at the scene's size then averages ``k x k`` blocks);
-    the size scaled to ``pixels`` when no factor divides both sides within 1.5x of it."""
+    the size scaled to ``pixels`` when no factor divides both sides within 2x of it."""
     best = None
     for k in range(1, min(width, height) + 1):
         if width % k or height % k:
@@ -157,7 +157,7 @@ def study_size(width: int, height: int, pixels: int) -> tuple[int, int]:
         miss = abs(math.log(width * height / (k * k) / pixels))
         if best is None or miss < best[0]:
             best = (miss, k)
-    if best is not None and best[0] <= math.log(1.5):
+    if best is not None and best[0] <= math.log(2.0):
         return width // best[1], height // best[1]
     scale = math.sqrt(pixels / (width * height))
     return max(1, round(width * scale)), max(1, round(height * scale))
