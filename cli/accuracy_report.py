@@ -28,8 +28,9 @@ def write_report(
     """Write everything into ``out_dir`` (and into ``docs_page`` and the folder beside it named
     after it, when given); returns the files written."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    written = [out_dir / "accuracy.json"]
+    written = [out_dir / "accuracy.json", out_dir / "images.npz"]
     written[0].write_text(json.dumps(results, indent=2, default=_json_default) + "\n")
+    save_images(images, written[1])
     image_dirs = [out_dir]
     if docs_page is not None:
         image_dirs.append(docs_page.with_suffix(""))
@@ -43,6 +44,28 @@ def write_report(
         splice(docs_page, markdown(results, relative, command))
         written.append(docs_page)
     return written
+
+
+def save_images(images: dict, path: Path) -> None:
+    """The report's images (reference and strip crops per scene) in one ``.npz``."""
+    arrays = {f"{name}/reference": scene["reference"] for name, scene in images.items()}
+    for name, scene in images.items():
+        arrays.update({f"{name}/strip/{spp}": img for spp, img in scene["strips"].items()})
+    np.savez_compressed(path, **arrays)
+
+
+def load_previous(folder: Path) -> tuple[dict, dict]:
+    """The results and images a previous run wrote into ``folder`` (to rebuild its report)."""
+    results = json.loads((folder / "accuracy.json").read_text())
+    images: dict = {name: {"strips": {}} for name in results["scenes"]}
+    with np.load(folder / "images.npz") as arrays:
+        for key in arrays.files:
+            name, kind, *rest = key.split("/")
+            if kind == "reference":
+                images[name]["reference"] = arrays[key]
+            else:
+                images[name]["strips"][int(rest[0])] = arrays[key]
+    return results, images
 
 
 def _json_default(value):

@@ -423,7 +423,7 @@ def render_frames(coordinator, frames: list[int], outputs: list[Path], args) -> 
 def cmd_bench(args: argparse.Namespace) -> int:
     """``bench accuracy``: the accuracy study (cli.accuracy), with a progress bar per scene."""
     from cli.accuracy import DEFAULT_CACHE, REPO_ROOT, StudyOptions, run_study
-    from cli.accuracy_report import write_report
+    from cli.accuracy_report import load_previous, write_report
 
     root = REPO_SCENES
     available = {path.parent.name: path for path in sample_scene_files(root)}
@@ -452,6 +452,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else REPO_ROOT / "bench" / "results" / "accuracy"
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} is not a directory")
+    command = " ".join(["tilerender", *getattr(args, "argv", ["bench", "accuracy"])])
+    docs_page = REPO_ROOT / "docs" / "accuracy.md" if args.docs else None
+    if args.report_only:
+        results, images = load_previous(out)
+        command = results.get("command", command)
+        written = write_report(results, images, out, docs_page, command)
+        if not args.quiet:
+            stderr.print(f"rewrote the report from {out}: {len(written)} files")
+        return 0
     if not numba_cache.kernels_cached() and not args.quiet:
         stderr.print("compiling render kernels (first run only; cached afterwards)...")
     with Progress(
@@ -478,8 +487,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         results, images = run_study(options, on_start, on_samples, on_phase)
         for task in progress.tasks:
             progress.update(task.id, completed=task.total)
-    command = " ".join(["tilerender", *getattr(args, "argv", ["bench", "accuracy"])])
-    docs_page = REPO_ROOT / "docs" / "accuracy.md" if args.docs else None
+    results["command"] = command
     written = write_report(results, images, out, docs_page, command)
     if not args.quiet:
         stderr.print(f"wrote {len(written)} files into {out}" + (" and docs/" if args.docs else ""))

@@ -321,6 +321,11 @@ def add_bench_parser(sub) -> None:
     accuracy.add_argument(
         "--cache", metavar="DIR", help="reference cache (default: bench/results/accuracy-cache)"
     )
+    accuracy.add_argument(
+        "--report-only",
+        action="store_true",
+        help="render nothing: rebuild the report from the results in --out",
+    )
     accuracy.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 

@@ -23,7 +23,7 @@ from cli.accuracy import (
     time_to,
 )
 from cli.accuracy_reference import block_mean, independent_reference, own_reference
-from cli.accuracy_report import REPORT_END, REPORT_START, splice, write_report
+from cli.accuracy_report import REPORT_END, REPORT_START, load_previous, splice, write_report
 from tests.helpers import CORNELL, SCENES
 from tracer import scene_format as fmt
 from tracer.compile import compile_scene
@@ -253,6 +253,10 @@ def test_report_files(study, tmp_path):
     assert "| `path-d2`: path, depth 2 |" in text
     loaded = json.loads((tmp_path / "out" / "accuracy.json").read_text())
     assert loaded["scenes"]["cornell-box"]["size"] == [32, 32]
+    again, again_images = load_previous(tmp_path / "out")
+    assert again == loaded
+    assert np.array_equal(again_images["cornell-box"]["strips"][4], images["strips"][4])
+    assert np.array_equal(again_images["cornell-box"]["reference"], images["reference"])
 
 
 def test_splice_appends_markers(tmp_path):
