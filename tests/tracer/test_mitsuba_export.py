@@ -1,0 +1,473 @@
+"""The Mitsuba 3 export: each material, light, sky and camera maps to the plugin and parameters
+docs/mitsuba.md gives; what Mitsuba cannot express raises naming the feature."""
+
+import dataclasses
+import math
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from tracer import mitsuba_export as mx
+from tracer import scene_format as fmt
+from tracer.image_io import read_image
+from tracer.loader import SceneData, load_scene
+from tracer.materials import conductor_index_from_reflectance
+from tracer.mitsuba_export import UnsupportedFeature, export_scene
+from tracer.shapes import box, rectangle, sphere
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLES = [
+    "cornell-box/scene.json",
+    "cornell-spheres/scene.json",
+    "veach-mis/scene.json",
+    "many-lights/scene.json",
+    "studio/scene.json",
+    "nefertiti/scene.json",
+    "outdoor/scene.json",
+    "gltf-box/Box.gltf",
+]
+
+
+def state_of(materials, shapes=None, lights=(), sky=None, camera=None, render=None):
+    """A scene of one shape per material (a unit rectangle unless ``shapes`` says otherwise)."""
+    from tracer.loader import MeshData
+
+    names = list(materials)
+    shapes = shapes or {}
+    meshes = []
+    for i, name in enumerate(names):
+        vertices, faces = shapes.get(name, rectangle(1.0, 1.0))
+        meshes.append(MeshData(name, vertices + [0.0, 0.0, -2.0 * i], faces, i))
+    data = SceneData(
+        camera=camera or fmt.Camera(),
+        render=render or fmt.RenderSettings(),
+        material_names=names,
+        materials=list(materials.values()),
+        meshes=meshes,
+        sky=sky or fmt.ConstantSky(),
+        lights=list(lights),
+    )
+    return data.to_state()
+
+
+def export(tmp_path, state, **kwargs):
+    result = export_scene(state, tmp_path, **kwargs)
+    return result, ET.fromstring(result.xml)
+
+
+def bsdf(root, material_index=0):
+    """The BSDF element with id material-<index>, unwrapped from ``twosided``."""
+    element = root.find(f"bsdf[@id='material-{material_index}']")
+    return element, (element.find("bsdf") if element.get("type") == "twosided" else element)
+
+
+def value(element, tag, name):
+    found = element.find(f"{tag}[@name='{name}']")
+    assert found is not None, f"no <{tag} name={name!r}>"
+    return found.get("value")
+
+
+def numbers(text):
+    return np.array([float(v) for v in text.replace(",", " ").split()])
+
+
+def test_xml_refers_only_to_written_files_and_defined_bsdfs(tmp_path):
+    result, root = export(tmp_path, load_scene(ROOT / "scenes" / "outdoor" / "scene.json"))
+    assert result.xml_path == tmp_path / "scene.xml"
+    assert result.xml_path.read_text() == result.xml
+    ids = {e.get("id") for e in root.iter() if e.get("id")}
+    for ref in root.iter("ref"):
+        assert ref.get("id") in ids
+    for node in root.iter("string"):
+        if node.get("name") == "filename":
+            assert (tmp_path / node.get("value")).is_file(), node.get("value")
+
+
+def test_meshes_are_world_space_triangles_without_normals(tmp_path):
+    state = load_scene(ROOT / "scenes" / "veach-mis" / "scene.json")
+    _, root = export(tmp_path, state)
+    shapes = [s for s in root.findall("shape") if s.get("type") == "ply"]
+    ours = state.world_meshes()
+    files = [tmp_path / value(s, "string", "filename") for s in shapes]
+    first = trimesh.load(files[0], process=False)
+    np.testing.assert_allclose(first.vertices, ours[0].vertices)
+    np.testing.assert_array_equal(first.faces, ours[0].faces)
+    assert b"nx" not in files[0].read_bytes()[:400]  # no vertex normals in the header
+    assert all(value(s, "boolean", "face_normals") == "true" for s in shapes)
+
+
+def test_diffuse_two_sided_is_wrapped_one_sided_is_not(tmp_path):
+    state = state_of(
+        {
+            "a": fmt.DiffuseMaterial(reflectance=(0.1, 0.2, 0.3)),
+            "b": fmt.DiffuseMaterial(reflectance=(0.4, 0.5, 0.6), two_sided=False),
+        }
+    )
+    _, root = export(tmp_path, state)
+    outer, inner = bsdf(root, 0)
+    assert outer.get("type") == "twosided" and inner.get("type") == "diffuse"
+    np.testing.assert_allclose(numbers(value(inner, "rgb", "reflectance")), [0.1, 0.2, 0.3])
+    outer, inner = bsdf(root, 1)
+    assert outer is inner and outer.get("type") == "diffuse"
+
+
+def test_mirror_is_a_perfect_conductor_with_its_reflectance(tmp_path):
+    _, root = export(tmp_path, state_of({"m": fmt.MirrorMaterial(type="mirror")}))
+    _, inner = bsdf(root)
+    assert inner.get("type") == "conductor"
+    assert value(inner, "string", "material") == "none"
+    np.testing.assert_allclose(numbers(value(inner, "rgb", "specular_reflectance")), 1.0)
+
+
+def test_dielectric_without_absorption_uses_the_path_tracer(tmp_path):
+    glass = fmt.DielectricMaterial(type="dielectric", ior=1.33)
+    result, root = export(tmp_path, state_of({"g": glass}, shapes={"g": sphere(1.0, 1)}))
+    outer, inner = bsdf(root)
+    assert outer is inner and inner.get("type") == "dielectric"
+    assert float(value(inner, "float", "int_ior")) == 1.33
+    assert float(value(inner, "float", "ext_ior")) == 1.0
+    assert result.integrator == "path" and root.find("integrator").get("type") == "path"
+    assert root.find(".//medium") is None
+
+
+def test_absorbing_dielectric_gets_an_interior_medium_and_volpath(tmp_path):
+    glass = fmt.DielectricMaterial(type="dielectric", absorption=(1.5, 0.4, 0.1))
+    result, root = export(tmp_path, state_of({"g": glass}, shapes={"g": sphere(1.0, 1)}))
+    assert result.integrator == "volpath"
+    medium = root.find("shape/medium")
+    assert medium.get("type") == "homogeneous" and medium.get("name") == "interior"
+    sigma = numbers(value(medium, "rgb", "sigma_t")) * float(value(medium, "float", "scale"))
+    np.testing.assert_allclose(sigma, [1.5, 0.4, 0.1])
+    assert numbers(value(medium, "rgb", "sigma_t")).max() <= 1.0
+    np.testing.assert_array_equal(numbers(value(medium, "rgb", "albedo")), 0.0)
+
+
+def test_smooth_conductor_from_reflectance_uses_our_complex_index(tmp_path):
+    gold = fmt.ConductorMaterial(type="conductor", reflectance=(0.95, 0.78, 0.34))
+    result, root = export(tmp_path, state_of({"c": gold}))
+    _, inner = bsdf(root)
+    assert inner.get("type") == "conductor"
+    eta, k = zip(*(conductor_index_from_reflectance(r) for r in (0.95, 0.78, 0.34)), strict=True)
+    np.testing.assert_allclose(numbers(value(inner, "rgb", "eta")), eta)
+    np.testing.assert_allclose(numbers(value(inner, "rgb", "k")), k)
+    assert result.deviations == ()
+
+
+def test_rough_conductor_is_ggx_with_alpha_roughness_squared(tmp_path):
+    copper = fmt.ConductorMaterial(type="conductor", eta=(0.27, 0.68, 1.22), k=(3.6, 2.6, 2.3))
+    copper = fmt.override(copper, roughness=0.3)
+    result, root = export(tmp_path, state_of({"c": copper}))
+    _, inner = bsdf(root)
+    assert inner.get("type") == "roughconductor"
+    assert value(inner, "string", "distribution") == "ggx"
+    assert float(value(inner, "float", "alpha")) == pytest.approx(0.09)
+    np.testing.assert_allclose(numbers(value(inner, "rgb", "eta")), [0.27, 0.68, 1.22])
+    np.testing.assert_allclose(numbers(value(inner, "rgb", "k")), [3.6, 2.6, 2.3])
+    assert [(d.kind, d.feature) for d in result.deviations] == [("model", "rough conductor 'c'")]
+    with pytest.raises(UnsupportedFeature, match="rough conductor 'c'"):
+        export_scene(state_of({"c": copper}), tmp_path / "strict", strict=True)
+
+
+def test_smooth_plastic_is_mitsubas_plastic_with_the_linear_base(tmp_path):
+    plastic = fmt.PlasticMaterial(type="plastic", reflectance=(0.7, 0.1, 0.1), ior=1.6)
+    plastic = fmt.override(plastic, roughness=0.0)
+    result, root = export(tmp_path, state_of({"p": plastic}))
+    _, inner = bsdf(root)
+    assert inner.get("type") == "plastic"
+    assert float(value(inner, "float", "int_ior")) == 1.6
+    assert float(value(inner, "float", "ext_ior")) == 1.0
+    assert value(inner, "boolean", "nonlinear") == "false"
+    np.testing.assert_allclose(numbers(value(inner, "rgb", "diffuse_reflectance")), [0.7, 0.1, 0.1])
+    assert result.deviations == ()
+
+
+def test_smooth_plastic_under_a_delta_light_is_a_model_difference(tmp_path):
+    plastic = fmt.override(fmt.PlasticMaterial(type="plastic"), roughness=0.0)
+    point = fmt.PointLight(type="point", position=(0, 1, 0), intensity=(1, 1, 1))
+    result, _ = export(tmp_path, state_of({"p": plastic}, lights=[point]))
+    assert [(d.kind, d.feature) for d in result.deviations] == [
+        ("model", "smooth plastic 'p' under delta lights")
+    ]
+
+
+def test_rough_plastic_is_roughplastic_and_a_model_difference(tmp_path):
+    plastic = fmt.override(fmt.PlasticMaterial(type="plastic"), roughness=0.3)
+    result, root = export(tmp_path, state_of({"p": plastic}))
+    _, inner = bsdf(root)
+    assert inner.get("type") == "roughplastic"
+    assert value(inner, "string", "distribution") == "ggx"
+    assert float(value(inner, "float", "alpha")) == pytest.approx(0.09)
+    assert [d.kind for d in result.deviations] == ["model"]
+
+
+def emitter_shapes(root):
+    return [s for s in root.findall("shape") if s.find("emitter") is not None]
+
+
+def test_one_sided_emitter_is_one_area_light(tmp_path):
+    lamp = fmt.DiffuseMaterial(reflectance=(0, 0, 0), emission=(5, 4, 3), two_sided=False)
+    result, root = export(tmp_path, state_of({"lamp": lamp}))
+    (shape,) = emitter_shapes(root)
+    emitter = shape.find("emitter")
+    assert emitter.get("type") == "area"
+    np.testing.assert_allclose(numbers(value(emitter, "rgb", "radiance")), [5, 4, 3])
+    assert result.deviations == ()
+
+
+def test_two_sided_closed_emitter_emits_from_its_outside_only(tmp_path):
+    lamp = fmt.DiffuseMaterial(reflectance=(0, 0, 0), emission=(5, 5, 5))
+    state = state_of({"lamp": lamp}, shapes={"lamp": box((1.0, 1.0, 1.0))})
+    result, root = export(tmp_path, state)
+    assert len(emitter_shapes(root)) == 1
+    assert result.deviations == ()
+
+
+def test_two_sided_closed_emitter_around_the_camera_is_duplicated(tmp_path):
+    lamp = fmt.DiffuseMaterial(reflectance=(0, 0, 0), emission=(5, 5, 5))
+    camera = fmt.Camera(position=(0.0, 0.0, 0.0), look_at=(0.0, 0.0, -1.0))
+    state = state_of({"lamp": lamp}, shapes={"lamp": sphere(3.0, 2)}, camera=camera)
+    result, root = export(tmp_path, state)
+    assert len(emitter_shapes(root)) == 2
+    assert [d.kind for d in result.deviations] == ["proxy"]
+
+
+def test_two_sided_open_emitter_gets_a_reversed_copy_just_behind(tmp_path):
+    lamp = fmt.DiffuseMaterial(reflectance=(0, 0, 0), emission=(5, 5, 5))
+    result, root = export(tmp_path, state_of({"lamp": lamp}))
+    front, back = (
+        trimesh.load(tmp_path / value(s, "string", "filename"), process=False)
+        for s in emitter_shapes(root)
+    )
+    np.testing.assert_array_equal(back.faces, front.faces[:, ::-1])
+    np.testing.assert_allclose(back.face_normals, -front.face_normals)
+    gap = (front.vertices - back.vertices) @ front.face_normals[0]
+    assert np.all(gap > 0.0) and np.all(gap < 1e-4)  # behind the front, by a hair
+    assert [(d.kind, d.feature) for d in result.deviations] == [
+        ("proxy", "two-sided emitter 'lamp'")
+    ]
+
+
+def test_point_light(tmp_path):
+    point = fmt.PointLight(type="point", position=(1, 2, 3), intensity=(4, 5, 6))
+    _, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, lights=[point]))
+    emitter = root.find("emitter[@type='point']")
+    np.testing.assert_allclose(numbers(value(emitter, "point", "position")), [1, 2, 3])
+    np.testing.assert_allclose(numbers(value(emitter, "rgb", "intensity")), [4, 5, 6])
+
+
+def spot(falloff):
+    return fmt.SpotLight(
+        type="spot",
+        position=(0, 3, 0),
+        look_at=(1, 0, 0),
+        intensity=(2, 2, 2),
+        cone_angle_deg=30.0,
+        falloff_deg=falloff,
+    )
+
+
+def test_hard_spot_is_a_cone_with_no_falloff(tmp_path):
+    result, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, lights=[spot(0.0)]))
+    emitter = root.find("emitter[@type='spot']")
+    assert float(value(emitter, "float", "cutoff_angle")) == 30.0
+    assert float(value(emitter, "float", "beam_width")) == 30.0
+    assert emitter.find("texture") is None
+    lookat = emitter.find("transform/lookat")
+    np.testing.assert_allclose(numbers(lookat.get("origin")), [0, 3, 0])
+    np.testing.assert_allclose(numbers(lookat.get("target")), [1, 0, 0])
+    up = numbers(lookat.get("up"))
+    assert abs(up @ np.array([1.0, -3.0, 0.0])) < 1e-12  # perpendicular to the axis
+    assert result.deviations == ()
+
+
+def test_soft_spot_carries_our_falloff_in_a_projection_bitmap(tmp_path):
+    result, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, lights=[spot(10.0)]))
+    texture = root.find("emitter[@type='spot']/texture")
+    image = read_image(tmp_path / value(texture, "string", "filename"))
+    n = mx.SPOT_TEXTURE_SIZE
+    assert image.shape == (n, n, 3)
+    # Texel (i, j) centre looks along ((2u - 1) tan 30, (2v - 1) tan 30, 1).
+    i, j = 3 * n // 8, n // 2
+    s = (2.0 * (np.array([i, j]) + 0.5) / n - 1.0) * math.tan(math.radians(30.0))
+    angle = math.degrees(math.atan(math.hypot(*s)))
+    t = math.cos(math.radians(angle)) - math.cos(math.radians(30))
+    t /= math.cos(math.radians(20)) - math.cos(math.radians(30))
+    expected = t * t * (3 - 2 * t) if 0 < t < 1 else float(t >= 1)
+    assert image[j, i, 0] == pytest.approx(expected, abs=1e-6)
+    assert image[n // 2, n // 2, 0] == 1.0 and image[0, 0, 0] == 0.0
+    assert [d.kind for d in result.deviations] == ["proxy"]
+
+
+def test_sun_without_radius_is_directional(tmp_path):
+    sun = fmt.SunLight(type="sun", to_sun=(0, 1, 1), irradiance=(3, 2, 1), angular_radius_deg=0.0)
+    result, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, lights=[sun]))
+    emitter = root.find("emitter[@type='directional']")
+    direction = numbers(value(emitter, "vector", "direction"))
+    np.testing.assert_allclose(direction, -np.array([0, 1, 1]) / math.sqrt(2))
+    np.testing.assert_allclose(numbers(value(emitter, "rgb", "irradiance")), [3, 2, 1])
+    assert result.deviations == ()
+
+
+def test_sun_with_radius_is_a_far_disc_of_the_same_solid_angle_and_irradiance(tmp_path):
+    sun = fmt.SunLight(type="sun", to_sun=(0, 1, 0), irradiance=(3, 2, 1), angular_radius_deg=2.0)
+    sky = fmt.ConstantSky(radiance=(0.1, 0.2, 0.3))
+    state = state_of({"a": fmt.DiffuseMaterial()}, lights=[sun], sky=sky)
+    result, root = export(tmp_path, state)
+    disk = root.find("shape[@type='disk']")
+    matrix = numbers(disk.find("transform/matrix").get("value")).reshape(4, 4)
+    center = matrix[:3, 3]
+    radius = np.linalg.norm(matrix[:3, 0])
+    normal = matrix[:3, 2] / np.linalg.norm(matrix[:3, 2])
+    scene_center = np.array([0.0, 0.0, 0.0])  # the unit rectangle at the origin
+    to_disc = center - scene_center
+    assert math.degrees(math.atan(radius / np.linalg.norm(to_disc))) == pytest.approx(2.0)
+    np.testing.assert_allclose(normal, -to_disc / np.linalg.norm(to_disc), atol=1e-12)
+    radiance = numbers(value(disk.find("emitter"), "rgb", "radiance"))
+    solid_angle_cos = math.pi * math.sin(math.radians(2.0)) ** 2  # projected solid angle
+    np.testing.assert_allclose((radiance - [0.1, 0.2, 0.3]) * solid_angle_cos, [3, 2, 1])
+    np.testing.assert_array_equal(numbers(value(disk.find("bsdf"), "rgb", "reflectance")), 0.0)
+    far = float(value(root.find("sensor"), "float", "far_clip"))
+    assert far > np.linalg.norm(to_disc) + 10.0
+    assert [d.kind for d in result.deviations] == ["proxy"]
+
+
+def test_constant_sky_and_a_black_sky(tmp_path):
+    sky = fmt.ConstantSky(radiance=(0.5, 0.6, 0.7))
+    _, root = export(tmp_path / "a", state_of({"a": fmt.DiffuseMaterial()}, sky=sky))
+    emitter = root.find("emitter[@type='constant']")
+    np.testing.assert_allclose(numbers(value(emitter, "rgb", "radiance")), [0.5, 0.6, 0.7])
+    _, root = export(tmp_path / "b", state_of({"a": fmt.DiffuseMaterial()}))
+    assert root.find("emitter") is None
+
+
+def test_gradient_sky_is_an_envmap_with_rows_at_mitsubas_polar_angles(tmp_path):
+    sky = fmt.GradientSky(type="gradient", zenith=(0.2, 0.3, 0.8), horizon=(0.8, 0.8, 0.9),
+                          ground=(0.3, 0.2, 0.1))  # fmt: skip
+    result, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, sky=sky))
+    emitter = root.find("emitter[@type='envmap']")
+    image = read_image(tmp_path / value(emitter, "string", "filename"))
+    rows = mx.SKY_ROWS
+    assert image.shape == (rows, mx.SKY_COLUMNS, 3)
+    np.testing.assert_allclose(image[0, 0], [0.2, 0.3, 0.8])  # straight up
+    np.testing.assert_allclose(image[-1, 0], [0.3, 0.2, 0.1])  # straight down
+    i = rows // 3
+    y = math.cos(i * math.pi / (rows - 1))
+    expected = [0.8 - 0.6 * y, 0.8 - 0.5 * y, 0.9 - 0.1 * y]
+    np.testing.assert_allclose(image[i, 5], expected, rtol=1e-6)
+    # The horizon falls between two rows: above it the horizon colour, below it the ground.
+    np.testing.assert_allclose(image[rows // 2 - 1, 0], [0.8, 0.8, 0.9], atol=1e-3)
+    np.testing.assert_allclose(image[rows // 2, 0], [0.3, 0.2, 0.1])
+    assert [d.kind for d in result.deviations] == ["proxy"]
+
+
+def test_pinhole_camera_film_and_integrator(tmp_path):
+    camera = fmt.Camera(position=(1, 2, 3), look_at=(0, 1, 0), vfov_deg=35.0, width=40, height=30)
+    render = fmt.RenderSettings(spp=7, max_depth=5, rr_depth=3)
+    _, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, camera=camera, render=render))
+    sensor = root.find("sensor")
+    assert sensor.get("type") == "perspective"
+    assert value(sensor, "string", "fov_axis") == "y"
+    assert float(value(sensor, "float", "fov")) == 35.0
+    lookat = sensor.find("transform/lookat")
+    np.testing.assert_allclose(numbers(lookat.get("origin")), [1, 2, 3])
+    np.testing.assert_allclose(numbers(lookat.get("target")), [0, 1, 0])
+    np.testing.assert_allclose(numbers(lookat.get("up")), [0, 1, 0])
+    assert value(sensor.find("sampler"), "integer", "sample_count") == "7"
+    assert sensor.find("sampler").get("type") == "independent"
+    film = sensor.find("film")
+    assert (value(film, "integer", "width"), value(film, "integer", "height")) == ("40", "30")
+    assert film.find("rfilter").get("type") == "box"
+    integrator = root.find("integrator")
+    assert value(integrator, "integer", "max_depth") == "5"
+    assert value(integrator, "integer", "rr_depth") == "3"
+    assert value(integrator, "boolean", "hide_emitters") == "false"
+
+
+def test_thin_lens_camera_focuses_at_the_look_at_distance_by_default(tmp_path):
+    camera = fmt.Camera(position=(0, 0, 5), look_at=(0, 0, 1), aperture_radius=0.1)
+    _, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, camera=camera))
+    sensor = root.find("sensor")
+    assert sensor.get("type") == "thinlens"
+    assert float(value(sensor, "float", "aperture_radius")) == 0.1
+    assert float(value(sensor, "float", "focus_distance")) == 4.0
+
+
+def test_direct_integrator_is_a_path_of_two_vertices(tmp_path):
+    render = fmt.RenderSettings(integrator="direct", max_depth=8)
+    _, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, render=render))
+    assert value(root.find("integrator"), "integer", "max_depth") == "2"
+
+
+@pytest.mark.parametrize(
+    "render, feature",
+    [
+        (fmt.RenderSettings(integrator="ao"), "integrator 'ao'"),
+        (fmt.RenderSettings(integrator="whitted"), "integrator 'whitted'"),
+        (fmt.RenderSettings(effects={"shadows": False}), "effects switched off (shadows)"),
+    ],
+)
+def test_settings_mitsuba_cannot_reproduce_raise_naming_them(tmp_path, render, feature):
+    with pytest.raises(UnsupportedFeature) as error:
+        export_scene(state_of({"a": fmt.DiffuseMaterial()}, render=render), tmp_path)
+    assert error.value.feature == feature
+    assert not (tmp_path / "scene.xml").exists()
+
+
+def test_a_model_field_the_export_does_not_know_raises_naming_it(tmp_path, monkeypatch):
+    """A field added to a model later (a texture, say) is refused when set, not dropped."""
+    known = dict(mx.KNOWN_FIELDS)
+    known[fmt.DiffuseMaterial] = {"type", "emission", "two_sided"}  # as if reflectance were new
+    monkeypatch.setattr(mx, "KNOWN_FIELDS", known)
+    with pytest.raises(UnsupportedFeature, match="material 'a': reflectance"):
+        export_scene(state_of({"a": fmt.DiffuseMaterial(reflectance=(0.1, 0.1, 0.1))}), tmp_path)
+    export_scene(state_of({"a": fmt.DiffuseMaterial()}), tmp_path)  # the default passes
+
+
+def test_an_unknown_sky_kind_raises_naming_it(tmp_path):
+    class EnvironmentSky(fmt.Strict):
+        type: str = "envmap"
+        path: str = "sky.exr"
+
+    state = state_of({"a": fmt.DiffuseMaterial()}, sky=EnvironmentSky())
+    with pytest.raises(UnsupportedFeature, match="sky of type 'envmap'"):
+        export_scene(state, tmp_path)
+
+
+def test_winding_numbers_tell_inside_from_outside():
+    vertices, faces = sphere(1.0, 2)
+    w = mx.winding_numbers(np.array([[0, 0, 0], [0.5, 0.2, 0], [2, 0, 0]]), vertices, faces)
+    np.testing.assert_allclose(w, [1, 1, 0], atol=1e-9)
+    assert mx.is_closed_outward(*box((1, 2, 3)))
+    assert not mx.is_closed_outward(vertices, faces[:, ::-1])
+    assert not mx.is_closed_outward(*rectangle(1, 1))
+
+
+def test_the_export_does_not_import_mitsuba():
+    code = "import sys, tracer.mitsuba_export; print('mitsuba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("relative", SAMPLES)
+def test_every_sample_scene_exports(tmp_path, relative):
+    result = export_scene(load_scene(ROOT / "scenes" / relative), tmp_path)
+    ET.fromstring(result.xml)
+    assert result.integrator in ("path", "volpath")
+
+
+def test_mitsuba_loads_and_renders_the_exports(tmp_path):
+    """Mitsuba itself (optional here) parses every export and renders it without NaNs."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    for i, relative in enumerate(SAMPLES):
+        state = load_scene(ROOT / "scenes" / relative)
+        camera = fmt.override(state.camera, width=6, height=4)
+        state = dataclasses.replace(state, camera=camera)
+        result = export_scene(state, tmp_path / str(i))
+        image = np.array(mi.render(mi.load_file(str(result.xml_path)), spp=1))
+        assert image.shape == (4, 6, 3) and np.isfinite(image).all(), relative
