@@ -293,7 +293,7 @@ def _decode_animation(header: _AnimationHeader | None, arrays) -> Animation | No
 
 
 def _pack(header: dict, arrays: _Arrays) -> bytes:
-    header["arrays"] = [[_DTYPES[a.dtype.kind], list(a.shape)] for a in arrays.items]
+    header["arrays"] = [[a.dtype.str, list(a.shape)] for a in arrays.items]
     text = json.dumps(header, separators=(",", ":"), allow_nan=False).encode()
     padding = b"\0" * (-(_PREFIX.size + len(text)) % 8)
     length = struct.pack("<I", len(text))

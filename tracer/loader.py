@@ -237,9 +237,10 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
         nodes[i] = Node(i, obj.name or label, parent, transform, obj.kind, key, obj.material)
     next_id = len(scene.objects)
     for parent, model in children:
+        kind = scene.objects[parent].kind
         for name, matrix, mesh_key, material_key in model.parts:
-            kind = scene.objects[parent].kind
-            nodes[next_id] = Node(next_id, name, parent, matrix, kind, mesh_key, material_key)
+            label = f"{nodes[parent].name}/{name}"
+            nodes[next_id] = Node(next_id, label, parent, matrix, kind, mesh_key, material_key)
             next_id += 1
     state = SceneState(
         version=0,
