@@ -566,6 +566,10 @@ def cmd_info(args: argparse.Namespace) -> int:
         "emissive_triangles": stats.emissive_triangles,
         "bounds": {"min": stats.bounds_min, "max": stats.bounds_max},
         "materials": list(scene.material_names),
+        "textures": {
+            name: [int(image.shape[1]), int(image.shape[0])]
+            for name, image in scene.textures.sources
+        },
         "instances": scene.stats.instances,
         "nodes": len(scene.state.nodes),
         "bvh_nodes": sum(int(pool.bounds.shape[0]) for pool in scene.pools),

@@ -13,7 +13,9 @@ weight 1 (no light sample could have found it). pdfs of delta samples are discre
 probabilities (the lobe's selection probability), never solid-angle densities.
 
 Per-material parameters are a row of ``param`` (``PARAMS`` float64 columns, see
-``tracer.materials`` for how scene materials fill them); ``albedo`` is the reflectance colour.
+``tracer.materials`` for how scene materials fill them); ``albedo`` is the base colour, with
+the texture applied: the reflectance of diffuse, mirror and plastic surfaces, and for a
+conductor a tint multiplying its Fresnel term (white without a texture).
 Formulas and references: docs/materials.md.
 """
 
@@ -175,7 +177,8 @@ def bsdf_eval(kind, albedo, param, n, wo, wi):
         s, t = coordinate_system(n)
         wo_l = (dot(s, wo), dot(t, wo), dot(n, wo))
         wi_l = (dot(s, wi), dot(t, wi), dot(n, wi))
-        return conductor_eval_local(param, wo_l, wi_l)
+        f, pdf = conductor_eval_local(param, wo_l, wi_l)
+        return (f[0] * albedo[0], f[1] * albedo[1], f[2] * albedo[2]), pdf
     if kind == PLASTIC:
         s, t = coordinate_system(n)
         wo_l = (dot(s, wo), dot(t, wo), dot(n, wo))
@@ -205,7 +208,8 @@ def bsdf_sample(kind, albedo, param, n, wo, front, refraction, u0, u1, u2):
     if kind == CONDUCTOR and param[ALPHA] < SMOOTH_ALPHA:
         c = 2.0 * cos_o
         wi = (c * n[0] - wo[0], c * n[1] - wo[1], c * n[2] - wo[2])
-        return wi, conductor_fresnel(param, cos_o), 1.0, True
+        f = conductor_fresnel(param, cos_o)
+        return wi, (f[0] * albedo[0], f[1] * albedo[1], f[2] * albedo[2]), 1.0, True
     s, t = coordinate_system(n)
     wo_l = (dot(s, wo), dot(t, wo), cos_o)
     if kind == DIELECTRIC:
@@ -236,7 +240,8 @@ def bsdf_sample(kind, albedo, param, n, wo, front, refraction, u0, u1, u2):
         f = conductor_fresnel(param, dot(wo_l, m))
         k = ggx_g(wo_l, wi_l, alpha) / ggx_g1(wo_l, alpha)
         pdf = ggx_reflection_pdf(wo_l, wi_l, alpha)
-        return to_world(wi_l, s, t, n), (f[0] * k, f[1] * k, f[2] * k), pdf, False
+        weight = (f[0] * k * albedo[0], f[1] * k * albedo[1], f[2] * k * albedo[2])
+        return to_world(wi_l, s, t, n), weight, pdf, False
     if kind == PLASTIC:
         if wo_l[2] <= 0.0:
             return wo, ZERO3, 0.0, False
@@ -255,8 +260,13 @@ def bsdf_sample(kind, albedo, param, n, wo, front, refraction, u0, u1, u2):
 
 
 @jit
-def bsdf_albedo(kind, albedo):
-    """The colour a debug ``albedo`` image shows: the reflectance, white for dielectrics."""
+def bsdf_albedo(kind, albedo, param):
+    """The colour a debug ``albedo`` image shows: the reflectance (textured), white for
+    dielectrics, and for conductors the Fresnel reflectance at normal incidence times the
+    tint."""
     if kind == DIELECTRIC:
         return (1.0, 1.0, 1.0)
+    if kind == CONDUCTOR:
+        f = conductor_fresnel(param, 1.0)
+        return (f[0] * albedo[0], f[1] * albedo[1], f[2] * albedo[2])
     return albedo

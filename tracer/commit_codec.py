@@ -7,13 +7,14 @@ Layout (little-endian)::
     header length                        uint32
     header                               UTF-8 JSON: the structure, arrays as {"$array": i}
     zero padding to a multiple of 8
-    arrays                               raw bytes, one after the other, in header["arrays"] order
+    arrays                               raw bytes, one after the other, in header["arrays"] order,
+                                         each zero-padded to a multiple of 8 bytes
 
-``header["arrays"]`` lists each array's ``[dtype, shape]`` (``"<f8"`` or ``"<i8"``); offsets
-follow from the shapes. Floats in the header are written with ``repr``, so every round trip is
-exact: arrays bit for bit, models equal. Decoding checks the checksum, every length, the header
-against a schema, and the decoded scene's invariants (``tracer.scene_check``), and raises
-:class:`SceneError` for anything malformed.
+``header["arrays"]`` lists each array's ``[dtype, shape]`` (``"<f8"``, ``"<i8"``, or ``"|u1"``
+for texture images); offsets follow from the shapes. Floats in the header are written with
+``repr``, so every round trip is exact: arrays bit for bit, models equal. Decoding checks the
+checksum, every length, the header against a schema, and the decoded scene's invariants
+(``tracer.scene_check``), and raises :class:`SceneError` for anything malformed.
 """
 
 import json
@@ -45,6 +46,8 @@ from tracer.scene_ops import Commit, parse_ops
 MAGIC = b"TLR1"
 _PREFIX = struct.Struct("<4sII")
 _DTYPES = {"f": "<f8", "i": "<i8"}
+_BYTES = "|u1"
+"""uint8 arrays (texture images) keep their type; every other array is stored by kind."""
 _KEY_COLUMNS = 11
 """Node keys: time, translate (3), rotation (4), scale (3). Camera keys: time, position (3),
 look_at (3), up (3), vfov_deg."""
@@ -56,7 +59,8 @@ class _Strict(BaseModel):
 
 _ArrayIndex = Annotated[int, Field(ge=0)]
 _ArraySpec = tuple[
-    Literal["<f8", "<i8"], Annotated[list[Annotated[int, Field(ge=0)]], Field(max_length=3)]
+    Literal["<f8", "<i8", "|u1"],
+    Annotated[list[Annotated[int, Field(ge=0)]], Field(max_length=3)],
 ]
 
 
@@ -83,6 +87,8 @@ class _StateHeader(_Strict):
     lights: list[fmt.Light]
     materials: list[tuple[str, fmt.Material]]
     meshes: list[tuple[str, _ArrayIndex, _ArrayIndex]]
+    mesh_uvs: list[tuple[str, _ArrayIndex]] = []
+    textures: list[tuple[str, _ArrayIndex]] = []
     nodes: list[tuple[int, str, int | None, NodeKind, str | None, str | None]]
     transforms: _ArrayIndex
     animation: _AnimationHeader | None
@@ -96,7 +102,8 @@ class _Arrays:
         self.items: list[np.ndarray] = []
 
     def add(self, array: np.ndarray) -> int:
-        self.items.append(np.ascontiguousarray(array, dtype=_DTYPES[array.dtype.kind]))
+        dtype = _BYTES if array.dtype == np.uint8 else _DTYPES[array.dtype.kind]
+        self.items.append(np.ascontiguousarray(array, dtype=dtype))
         return len(self.items) - 1
 
     def ref(self, array: np.ndarray) -> dict[str, int]:
@@ -139,6 +146,10 @@ def encode_state(state: SceneState) -> bytes:
         "meshes": [
             [name, arrays.add(m.vertices), arrays.add(m.faces)] for name, m in state.meshes.items()
         ],
+        "mesh_uvs": [
+            [name, arrays.add(m.uvs)] for name, m in state.meshes.items() if m.uvs is not None
+        ],
+        "textures": [[name, arrays.add(pixels)] for name, pixels in state.textures.items()],
         "nodes": [[n.id, n.name, n.parent, n.kind, n.mesh, n.material] for n in nodes],
         "transforms": arrays.add(transforms),
         "animation": _encode_animation(state.animation, arrays),
@@ -215,13 +226,28 @@ def _array(arrays: list[np.ndarray], index, dtype: str | None = None, shape=None
 
 
 def _build_state(header: _StateHeader, arrays: list[np.ndarray]) -> SceneState:
+    uvs = {}
+    for name, index in header.mesh_uvs:
+        if name in uvs:
+            raise SceneError(f"the UVs of mesh {name!r} appear twice")
+        uvs[name] = _array(arrays, index, "<f8", (None, 2))
     meshes = {}
     for name, vertices, faces in header.meshes:
         if name in meshes:
             raise SceneError(f"mesh {name!r} appears twice")
         meshes[name] = make_mesh(
-            _array(arrays, vertices, "<f8"), _array(arrays, faces, "<i8"), f"mesh {name!r}"
+            _array(arrays, vertices, "<f8"),
+            _array(arrays, faces, "<i8"),
+            f"mesh {name!r}",
+            uvs.pop(name, None),
         )
+    if uvs:
+        raise SceneError(f"UVs for mesh {next(iter(uvs))!r}, which does not exist")
+    textures = {}
+    for name, index in header.textures:
+        if name in textures:
+            raise SceneError(f"texture {name!r} appears twice")
+        textures[name] = frozen_array(_array(arrays, index, "|u1", (None, None, 3)), np.uint8)
     materials = dict(header.materials)
     if len(materials) != len(header.materials):
         raise SceneError("a material name appears twice")
@@ -242,6 +268,7 @@ def _build_state(header: _StateHeader, arrays: list[np.ndarray]) -> SceneState:
         sky=header.sky,
         lights=tuple(header.lights),
         animation=_decode_animation(header.animation, arrays),
+        textures=textures,
     )
 
 
@@ -266,11 +293,13 @@ def _decode_animation(header: _AnimationHeader | None, arrays) -> Animation | No
 
 
 def _pack(header: dict, arrays: _Arrays) -> bytes:
-    header["arrays"] = [[_DTYPES[a.dtype.kind], list(a.shape)] for a in arrays.items]
+    header["arrays"] = [[a.dtype.str, list(a.shape)] for a in arrays.items]
     text = json.dumps(header, separators=(",", ":"), allow_nan=False).encode()
     padding = b"\0" * (-(_PREFIX.size + len(text)) % 8)
     length = struct.pack("<I", len(text))
-    parts = [length, text, padding, *(a.data for a in arrays.items)]
+    parts = [length, text, padding]
+    for a in arrays.items:
+        parts += [a.data, b"\0" * (-a.nbytes % 8)]
     crc = 0
     for part in parts:
         crc = zlib.crc32(part, crc)
@@ -303,12 +332,12 @@ def _unpack(data: bytes, model: type[BaseModel]) -> tuple[Any, list[np.ndarray]]
     offset = end + (-end % 8)
     arrays = []
     for dtype, shape in header.arrays:
-        size = math.prod(shape) * 8
+        count = math.prod(shape)
+        size = count * np.dtype(dtype).itemsize
         if offset + size > len(view):
             raise SceneError("an array runs past the end of the data (truncated?)")
-        count = size // 8
         arrays.append(np.frombuffer(view, dtype, count, offset).reshape(shape))
-        offset += size
+        offset += size + (-size % 8)
     if offset != len(view):
         raise SceneError(f"{len(view) - offset} unexpected bytes after the arrays")
     return header, arrays

@@ -33,7 +33,9 @@ from tracer.jit import jit
 from tracer.lights import LightTable, build_light_table, light_arrays, scene_fields
 from tracer.materials import MaterialTable, material_table
 from tracer.scene_arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
+from tracer.scene_check import check_textures
 from tracer.scene_model import Mesh, SceneState
+from tracer.textures import TextureTable, texture_table, uv_rows
 from tracer.transforms import round_trip_bound, to_rows
 
 STATIC_KEY = "\0static"
@@ -65,6 +67,9 @@ class MeshAccel:
     owner: np.ndarray | None = None
     """For the baked static mesh, int32 (T, 2) per triangle (mesh order): the scene node it came
     from and its index in that node's mesh. ``None`` for user meshes."""
+    tri_uv: np.ndarray | None = None
+    """float32 (T, 6), leaf order: each triangle's vertex UVs; ``None`` when the mesh has none
+    (the baked static mesh has rows of zeros for the meshes without)."""
 
     @property
     def triangles(self) -> int:
@@ -85,6 +90,8 @@ class Pool:
     tri_verts: np.ndarray
     tri_prim: np.ndarray
     tri_material: np.ndarray
+    tri_uv: np.ndarray
+    """float32 (M, 6), or (0, 6) when no mesh of the pool has UVs."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +114,7 @@ class CompiledScene:
     world minus origin)."""
     arrays: SceneArrays
     materials: MaterialTable
+    textures: TextureTable
     lights: LightTable
     meshes: dict[str, MeshAccel]
     pools: tuple[Pool, Pool]
@@ -231,7 +239,8 @@ def _centered_triangles(vertices: np.ndarray, faces: np.ndarray, label: str):
     return center, _gather_centered(vertices, faces, center)
 
 
-def _accel(source, tri_verts, center, zero_area, per_triangle_material, label) -> MeshAccel:
+def _accel(source, tri_verts, center, zero_area, per_triangle_material, uv, label) -> MeshAccel:
+    """A mesh's BVH; ``uv`` float32 (T, 6) in the mesh's triangle order, or None."""
     valid = np.flatnonzero(~zero_area).astype(np.int32)
     if valid.size == 0:
         raise SceneError(f"{label}: every triangle of the mesh has zero area")
@@ -247,7 +256,12 @@ def _accel(source, tri_verts, center, zero_area, per_triangle_material, label) -
         hi,
         zero_area,
         sah_reference=bvh_update.sah_costs(accel),
+        tri_uv=None if uv is None else uv[accel.tri_prim],
     )
+
+
+def _mesh_uv(mesh: Mesh) -> np.ndarray | None:
+    return None if mesh.uvs is None else uv_rows(mesh.uvs, mesh.faces)
 
 
 def mesh_accel(
@@ -277,6 +291,7 @@ def mesh_accel(
             rebuild_threshold,
         )
         lo, hi = _bounds(moved.bvh.tri_verts.reshape(-1, 3))
+        uv = _mesh_uv(mesh)
         return MeshAccel(
             mesh,
             moved.bvh,
@@ -286,8 +301,9 @@ def mesh_accel(
             hi,
             zero_area,
             sah_reference=moved.reference,
+            tri_uv=None if uv is None else uv[moved.bvh.tri_prim],
         )
-    return _accel(mesh, tri_verts, center, zero_area, no_material, f"mesh {key!r}")
+    return _accel(mesh, tri_verts, center, zero_area, no_material, _mesh_uv(mesh), f"mesh {key!r}")
 
 
 def static_signature(state: SceneState) -> tuple:
@@ -310,7 +326,7 @@ def static_accel(state: SceneState, signature: tuple, material_index: dict) -> M
     """All static geometry baked into one world-space mesh (triangles in node order)."""
     if not signature:
         return None
-    parts, materials, owners, locals_ = [], [], [], []
+    parts, materials, owners, locals_, uvs = [], [], [], [], []
     for node, mesh, _ in signature:
         matrix = state.world_transform(node.id)
         with np.errstate(all="ignore"):
@@ -319,6 +335,7 @@ def static_accel(state: SceneState, signature: tuple, material_index: dict) -> M
             raise SceneError(f"{node.name or node.id}: its transform moves vertices to infinity")
         faces = mesh.faces[:, ::-1] if np.linalg.det(matrix[:3, :3]) < 0.0 else mesh.faces
         parts.append(world[faces])
+        uvs.append(None if mesh.uvs is None else uv_rows(mesh.uvs, faces))
         materials.append(np.full(faces.shape[0], material_index[node.material], np.int32))
         owners.append(np.full(faces.shape[0], node.id, np.int64))
         locals_.append(np.arange(faces.shape[0], dtype=np.int64))
@@ -335,7 +352,12 @@ def static_accel(state: SceneState, signature: tuple, material_index: dict) -> M
         mine = owner == node.id
         if zero_area[mine].all():
             raise SceneError(f"{node.name or node.id}: every triangle of the mesh has zero area")
-    accel = _accel(signature, tri_verts, center, zero_area, np.concatenate(materials), "scene")
+    uv = None
+    if any(rows is not None for rows in uvs):
+        rows = [np.zeros((p.shape[0], 6), np.float32) if r is None else r
+                for p, r in zip(parts, uvs, strict=True)]  # fmt: skip
+        uv = np.concatenate(rows)
+    accel = _accel(signature, tri_verts, center, zero_area, np.concatenate(materials), uv, "scene")
     owner_table = np.stack([owner, np.concatenate(locals_)], axis=1).astype(np.int32)
     return dataclasses.replace(accel, owner=owner_table)
 
@@ -365,7 +387,7 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
     ):
         return previous
     node_offset, tri_offset = {}, {}
-    bounds, child, verts, prim, material = [], [], [], [], []
+    bounds, child, verts, prim, material, uv = [], [], [], [], [], []
     nodes = tris = 0
     for key, accel in zip(keys, accels, strict=True):
         node_offset[key] = nodes
@@ -375,6 +397,7 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
         verts.append(accel.bvh.tri_verts)
         prim.append(accel.bvh.tri_prim)
         material.append(accel.tri_material)
+        uv.append(accel.tri_uv)
         nodes += accel.bvh.node_bounds.shape[0]
         tris += accel.bvh.tri_verts.shape[0]
     if tris > bvh_module.MAX_TRIANGLES:
@@ -382,6 +405,12 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
 
     def joined(parts, shape, dtype):
         return np.concatenate(parts) if parts else np.zeros(shape, dtype)
+
+    if all(rows is None for rows in uv):
+        uv = []  # no mesh of the pool has UVs: kernels never read them
+    else:
+        uv = [np.zeros((v.shape[0], 6), np.float32) if r is None else r
+              for v, r in zip(verts, uv, strict=True)]  # fmt: skip
 
     return Pool(
         keys,
@@ -393,6 +422,7 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
         joined(verts, (0, 9), np.float32),
         joined(prim, (0,), np.int32),
         joined(material, (0,), np.int32),
+        joined(uv, (0, 6), np.float32),
     )
 
 
@@ -439,8 +469,14 @@ def compile_scene(
     state = scene.to_state() if hasattr(scene, "to_state") else scene
     if not state.geometry_nodes():
         raise SceneError("the scene has no objects")
+    check_textures(state)
     material_index = {name: i for i, name in enumerate(state.materials)}
     materials = material_table(list(state.materials.values()))
+    textures = texture_table(
+        state.textures,
+        list(state.materials.values()),
+        previous.textures if previous is not None else None,
+    )
     old_meshes = previous.meshes if previous is not None else {}
 
     # Mesh BVHs: the baked static mesh, then every mesh a non-static node uses.
@@ -534,6 +570,11 @@ def compile_scene(
         mat_two_sided=materials.two_sided,
         mat_kind=materials.kind,
         mat_param=materials.param,
+        mat_texture=textures.material,
+        tri_uv=(pools[0].tri_uv, pools[1].tri_uv),
+        tex_pixels=textures.pixels,
+        tex_info=textures.info,
+        tex_scale=textures.scale,
         **scene_fields(light),
     )
     stats = SceneStats(
@@ -551,6 +592,7 @@ def compile_scene(
         origin=origin,
         arrays=arrays,
         materials=materials,
+        textures=textures,
         lights=lights,
         meshes=meshes,
         pools=pools,

@@ -46,3 +46,8 @@ heat map (tracer.heatmap); the scale is logarithmic from 0."""
 SPECIALISED_KERNELS = False
 """Run the path kernel compiled for each effect plan (True) or the one with runtime flags
 (False). Measured in docs/effects.md (bench/effects.py)."""
+
+# --- Textures --------------------------------------------------------------------------------
+MAX_TEXTURE_SIDE = 16384
+MAX_TEXTURE_PIXELS = 16 * 1024 * 1024
+"""Most pixels in one texture (64 MB of uint8 in a scene, 192 MB of float32 texels compiled)."""

@@ -41,6 +41,8 @@ EMITTER_HITS = 1 << 10
 last path vertex traces its continuation ray only to find such emission."""
 LIGHT_SAMPLES = 1 << 11
 """Next-event estimation at all."""
+TEXTURES = 1 << 12
+"""Base-colour texture lookups where rays hit textured materials."""
 
 EFFECTS = {
     "area_lights": AREA_LIGHTS,
@@ -55,6 +57,7 @@ EFFECTS = {
     "glossy": GLOSSY,
     "emitter_hits": EMITTER_HITS,
     "light_samples": LIGHT_SAMPLES,
+    "textures": TEXTURES,
 }
 ALL = sum(EFFECTS.values())
 MATERIAL_EFFECTS = SPECULAR | GLOSSY | REFRACTION | ABSORPTION
@@ -108,7 +111,9 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
     - specular / glossy / refraction / absorption iff a material of that model is used by a
       visible object (absorption: a dielectric with a non-zero absorption coefficient);
     - indirect light is needed iff the path can have more than two vertices, some non-emissive
-      material reflects anything, and something emits.
+      material reflects anything, and something emits;
+    - textures are needed iff a visible object's material has a texture and the integrator
+      reads base colours (all but ``ao``, ``normal`` and ``depth``).
     """
     table = scene.lights
     weight = table.weight
@@ -204,6 +209,16 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
         else "no surface reflects"
         if not reflects
         else "nothing emits",
+    )
+    textured = any(scene.textures.material[m] >= 0 for m in used)
+    reads_colour = settings.integrator not in ("ao", "normal", "depth")
+    decide(
+        "textures",
+        textured and reads_colour,
+        "textured materials",
+        "no textured material"
+        if not textured
+        else f"the {settings.integrator} output reads no base colour",
     )
     return EffectPlan(flags, reasons)
 

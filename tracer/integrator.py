@@ -59,6 +59,7 @@ from tracer.scene_intersect import (
     spawn,
     surface,
 )
+from tracer.textures import textured_albedo
 from tracer.vecmath import dot, max_component, sub
 
 PIXEL_BLOCK = 32
@@ -243,6 +244,8 @@ def path_kernel(materials: bool, lights: bool):
                         albedo = (np.float64(s.mat_albedo[mat, 0]),
                                   np.float64(s.mat_albedo[mat, 1]),
                                   np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
+                        if plan & effects.TEXTURES:
+                            albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
                         wo = (-d[0], -d[1], -d[2])
                         kind = DIFFUSE
                         param = NO_PARAM

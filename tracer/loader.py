@@ -2,12 +2,12 @@
 
 Accepted inputs: a ``tilerender/1`` JSON scene, or a single mesh file (glTF, GLB, OBJ, PLY, STL),
 which becomes a scene with a camera framing its bounds and, if nothing in it emits, a default
-area light. All mesh I/O goes through trimesh. Every failure raises :class:`SceneError` with a
+area light. All mesh I/O goes through trimesh (``tracer.mesh_files``), images through Pillow
+(``tracer.textures``). Every failure raises :class:`SceneError` with a
 one-line message; nothing is half-loaded.
 """
 
 import json
-import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +25,8 @@ from tracer.animation import (
     quaternion_from_euler_xyz,
 )
 from tracer.errors import SceneError
+from tracer.mesh_files import FileModel, load_file_model, load_mesh_file
+from tracer.scene_check import check_textures
 from tracer.scene_model import (
     Animation,
     CameraKey,
@@ -35,7 +37,8 @@ from tracer.scene_model import (
     frozen_array,
     make_mesh,
 )
-from tracer.shapes import rectangle, shape_mesh
+from tracer.shapes import rectangle, shape_mesh, shape_uvs
+from tracer.textures import material_texture, read_texture
 
 IDENTITY = frozen_array(np.eye(4), np.float64)
 
@@ -119,26 +122,6 @@ def resolve_reference(scene_dir: Path, reference: str) -> Path:
     return target
 
 
-def _load_trimesh(path: Path):
-    logging.getLogger("trimesh").setLevel(logging.ERROR)
-    try:
-        return trimesh.load(str(path), process=False)
-    except Exception as exc:  # trimesh raises many kinds; all mean "cannot read this file"
-        raise SceneError(f"{path.name}: cannot read mesh file ({exc})") from None
-
-
-def load_mesh_file(path: Path) -> Mesh:
-    """All triangles of a mesh file in its own coordinates (glTF node transforms applied)."""
-    loaded = _load_trimesh(path)
-    if isinstance(loaded, trimesh.Scene):
-        if not loaded.geometry:
-            raise SceneError(f"{path.name}: the file contains no meshes")
-        loaded = loaded.to_geometry()
-    if not isinstance(loaded, trimesh.Trimesh):
-        raise SceneError(f"{path.name}: the file holds no triangles (points or lines only?)")
-    return make_mesh(loaded.vertices, loaded.faces, path.name)
-
-
 def load_scene(path: str | Path) -> SceneState:
     """Load a JSON scene or a single mesh file."""
     path = Path(path)
@@ -190,9 +173,12 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
     """The state a validated scene model describes, meshes resolved relative to ``scene_dir``.
 
     Objects become nodes (ids in file order, parents by name); objects with the same shape
-    share one mesh (instancing). With an ``animation`` section the state is posed at frame 0:
-    an animated object's transform, and the camera if it is animated, are the animation's
-    values at time 0 (see :func:`animation_from_file`).
+    share one mesh (instancing). An object without a material (a mesh file with its own) is a
+    grouping node whose children, with ids after every object's, are the file's mesh nodes
+    with the file's materials (``tracer.mesh_files``). Textures are read relative to
+    ``scene_dir``. With an ``animation`` section the state is posed at frame 0: an animated
+    object's transform, and the camera if it is animated, are the animation's values at time 0
+    (see :func:`animation_from_file`).
     """
     names = {obj.name: i for i, obj in enumerate(scene.objects) if obj.name}
     animation = animation_from_file(scene)
@@ -204,16 +190,38 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
             camera = camera_at(animation.camera, start, scene.camera)
     meshes: dict[str, Mesh] = {}
     nodes: dict[int, Node] = {}
+    materials: dict[str, fmt.Material] = dict(scene.materials)
+    textures = material_textures(scene.materials, scene_dir)
+    file_models: dict[str, FileModel] = {}
+    children: list[tuple[int, FileModel]] = []
     for i, obj in enumerate(scene.objects):
         label = obj.name or f"objects[{i}]"
-        if isinstance(obj.shape, fmt.MeshFile):
+        if obj.material is None:
+            key = None
+            reference = obj.shape.path
+            if reference not in file_models:
+                model = load_file_model(
+                    resolve_reference(scene_dir, reference), reference, f"file:{reference}#"
+                )
+                for name in model.materials:
+                    if name in materials:
+                        raise SceneError(
+                            f"{label}: the file's material {name!r} has the name of a material "
+                            "of the scene; rename that one"
+                        )
+                file_models[reference] = model
+                meshes.update(model.meshes)
+                materials.update(model.materials)
+                textures.update(model.textures)
+            children.append((i, file_models[reference]))
+        elif isinstance(obj.shape, fmt.MeshFile):
             key = f"file:{obj.shape.path}"
             if key not in meshes:
                 meshes[key] = load_mesh_file(resolve_reference(scene_dir, obj.shape.path))
         else:
             key = f"shape:{obj.shape.model_dump_json()}"
             if key not in meshes:
-                meshes[key] = make_mesh(*shape_mesh(obj.shape), label)
+                meshes[key] = make_mesh(*shape_mesh(obj.shape), label, shape_uvs(obj.shape))
         parent = None
         if obj.parent is not None:
             if obj.parent not in names:
@@ -227,17 +235,39 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
             matrix = obj.transform.to_matrix()
         transform = frozen_array(matrix, np.float64)
         nodes[i] = Node(i, obj.name or label, parent, transform, obj.kind, key, obj.material)
-    return SceneState(
+    next_id = len(scene.objects)
+    for parent, model in children:
+        kind = scene.objects[parent].kind
+        for name, matrix, mesh_key, material_key in model.parts:
+            label = f"{nodes[parent].name}/{name}"
+            nodes[next_id] = Node(next_id, label, parent, matrix, kind, mesh_key, material_key)
+            next_id += 1
+    state = SceneState(
         version=0,
         meshes=meshes,
-        materials=dict(scene.materials),
+        materials=materials,
         nodes=nodes,
         camera=camera,
         render=scene.render,
         sky=scene.sky,
         animation=animation,
         lights=tuple(scene.lights),
+        textures=textures,
     )
+    check_textures(state)
+    return state
+
+
+def material_textures(materials: dict[str, fmt.Material], scene_dir: Path) -> dict:
+    """The images the scene's materials name, read relative to ``scene_dir`` (by file name as
+    written), as ``tracer.textures`` pixels."""
+    textures: dict = {}
+    for name, material in materials.items():
+        texture = material_texture(material)
+        if texture is not None and texture.file not in textures:
+            path = resolve_reference(scene_dir, texture.file)
+            textures[texture.file] = read_texture(path, f"materials.{name}.texture: {texture.file}")
+    return textures
 
 
 def animation_from_file(scene: fmt.SceneFile) -> Animation | None:
@@ -391,69 +421,28 @@ def _check_camera_between_keys(animation: Animation, base: fmt.Camera) -> None:
                 raise SceneError(message) from None
 
 
-def _gltf_material(material) -> fmt.DiffuseMaterial:
-    """Map a trimesh material (glTF PBR or OBJ/MTL) onto a diffuse material."""
-    base = np.ones(3)
-    emission = np.zeros(3)
-    two_sided = True
-    if isinstance(material, trimesh.visual.material.PBRMaterial):
-        if material.baseColorFactor is not None:
-            base = np.asarray(material.baseColorFactor[:3], dtype=np.float64) / 255.0
-        if material.emissiveFactor is not None:
-            emission = np.asarray(material.emissiveFactor[:3], dtype=np.float64)
-        two_sided = bool(material.doubleSided)
-    elif isinstance(material, trimesh.visual.material.SimpleMaterial):
-        base = np.asarray(material.diffuse[:3], dtype=np.float64) / 255.0
-    return fmt.DiffuseMaterial(
-        reflectance=tuple(np.clip(base, 0.0, 1.0)),
-        emission=tuple(np.maximum(emission, 0.0)),
-        two_sided=two_sided,
-    )
-
-
 def scene_from_mesh_file(path: Path) -> SceneState:
-    """A scene made of one mesh file: its own materials, a framing camera, a default light."""
-    loaded = _load_trimesh(path)
-    if isinstance(loaded, trimesh.Trimesh):
-        parts = [(path.stem, np.eye(4), path.stem, loaded)]
-    elif isinstance(loaded, trimesh.Scene):
-        parts = []
-        for node in loaded.graph.nodes_geometry:
-            matrix, geometry_name = loaded.graph[node]
-            geometry = loaded.geometry[geometry_name]
-            if isinstance(geometry, trimesh.Trimesh):
-                parts.append((str(node), np.asarray(matrix, np.float64), geometry_name, geometry))
-    else:
-        parts = []
-    if not parts:
-        raise SceneError(f"{path.name}: the file contains no triangle meshes")
-    meshes: dict[str, Mesh] = {}
-    materials: dict[str, fmt.DiffuseMaterial] = {}
+    """A scene made of one mesh file: its own materials and textures (``tracer.mesh_files``),
+    a framing camera, a default light."""
+    model = load_file_model(path, path.name, f"{path.name}:")
     nodes: dict[int, Node] = {}
     corners = []
-    for i, (name, matrix, geometry_name, geometry) in enumerate(parts):
-        key = f"{path.name}:{geometry_name}"
-        if key not in meshes:
-            meshes[key] = make_mesh(geometry.vertices, geometry.faces, f"{path.name}:{name}")
-            materials[key] = _gltf_material(getattr(geometry.visual, "material", None))
-        try:
-            transform = fmt.Transform(matrix=tuple(map(tuple, matrix))).to_matrix()
-        except pydantic.ValidationError as exc:
-            raise SceneError(f"{path.name}:{name}: {format_validation_error(exc)}") from None
-        nodes[i] = Node(i, name, None, frozen_array(transform, np.float64), "static", key, key)
-        v = meshes[key].vertices @ transform[:3, :3].T + transform[:3, 3]
+    for i, (name, transform, mesh_key, material_key) in enumerate(model.parts):
+        nodes[i] = Node(i, name, None, transform, "static", mesh_key, material_key)
+        v = model.meshes[mesh_key].vertices @ transform[:3, :3].T + transform[:3, 3]
         corners += [v.min(axis=0), v.max(axis=0)]
     lo = np.min(corners, axis=0)
     hi = np.max(corners, axis=0)
     state = SceneState(
         version=0,
-        meshes=meshes,
-        materials=materials,
+        meshes=model.meshes,
+        materials=model.materials,
         nodes=nodes,
         camera=framing_camera(lo, hi),
         render=fmt.RenderSettings(),
+        textures=model.textures,
     )
-    if not any(max(getattr(m, "emission", (0.0,))) > 0.0 for m in materials.values()):
+    if not any(max(getattr(m, "emission", (0.0,))) > 0.0 for m in model.materials.values()):
         state = with_default_light(state, lo, hi)
     return state
 
@@ -507,4 +496,5 @@ def with_default_light(state: SceneState, lo: np.ndarray, hi: np.ndarray) -> Sce
         sky=state.sky,
         animation=state.animation,
         lights=state.lights,
+        textures=state.textures,
     )

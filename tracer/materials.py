@@ -24,7 +24,11 @@ PLASTIC_MIN_ALPHA = 1e-3
 
 class MaterialTable(NamedTuple):
     """Per material, in the state's order: ``kind`` int32 (K,), ``albedo`` and ``emission``
-    float32 (K, 3), ``two_sided`` bool (K,), ``param`` float64 (K, ``bsdf.PARAMS``)."""
+    float32 (K, 3), ``two_sided`` bool (K,), ``param`` float64 (K, ``bsdf.PARAMS``).
+
+    ``albedo`` is the base colour a texture multiplies: the reflectance of diffuse, mirror and
+    plastic materials; white for conductors (their colour is in ``eta`` and ``k``, and a
+    texture tints their Fresnel term) and dielectrics."""
 
     kind: np.ndarray
     albedo: np.ndarray
@@ -71,13 +75,12 @@ def material_row(m: fmt.Material) -> tuple[int, tuple, tuple, bool, np.ndarray]:
         param[bsdf.ALPHA] = roughness_to_alpha(m.roughness)
         if m.eta is not None:
             eta, k = m.eta, m.k
-            albedo = (1.0, 1.0, 1.0)
         else:
-            albedo = m.reflectance or DEFAULT_CONDUCTOR_REFLECTANCE
-            eta, k = zip(*(conductor_index_from_reflectance(r) for r in albedo), strict=True)
+            reflectance = m.reflectance or DEFAULT_CONDUCTOR_REFLECTANCE
+            eta, k = zip(*(conductor_index_from_reflectance(r) for r in reflectance), strict=True)
         param[bsdf.ETA : bsdf.ETA + 3] = eta
         param[bsdf.K : bsdf.K + 3] = k
-        return kind, albedo, m.emission, m.two_sided, param
+        return kind, (1.0, 1.0, 1.0), m.emission, m.two_sided, param
     if isinstance(m, fmt.PlasticMaterial):
         param[bsdf.ALPHA] = max(PLASTIC_MIN_ALPHA, roughness_to_alpha(m.roughness))
         param[bsdf.IOR] = m.ior

@@ -114,6 +114,7 @@ def render_lines(
             OUTPUTS[settings.integrator],
             settings.ao_samples,
             settings.ao_distance * scene_diagonal(scene),
+            bool(plan.flags & effects.TEXTURES),
         )
 
         def surface_work(part: int, parts: int) -> None:

@@ -61,6 +61,17 @@ class SceneArrays(NamedTuple):
     """int32 (Q,): BSDF kind (``tracer.bsdf`` constants)."""
     mat_param: np.ndarray
     """float64 (Q, ``bsdf.PARAMS``): BSDF parameters (``tracer.materials``)."""
+    mat_texture: np.ndarray
+    """int32 (Q,): the material's base-colour texture (a row of ``tex_info``), or -1."""
+    tri_uv: tuple[np.ndarray, np.ndarray]
+    """float32 (M, 6) per pool: each row's vertex UVs (zeros for a mesh without UVs); (0, 6)
+    when no mesh of the pool has UVs."""
+    tex_pixels: np.ndarray
+    """float32 (N, 3): linear RGB texels of every texture (``tracer.textures``)."""
+    tex_info: np.ndarray
+    """int64 (T, 4): per texture its first texel, width, height and wrap mode."""
+    tex_scale: np.ndarray
+    """float64 (T, 2): per texture the scale applied to UVs."""
     light_kind: np.ndarray
     """int32 (L,): kind of each light (``tracer.lights`` constants)."""
     light_inst: np.ndarray
@@ -125,6 +136,11 @@ def borrow_scene(s):
         borrowed(s.mat_two_sided),
         borrowed(s.mat_kind),
         borrowed(s.mat_param),
+        borrowed(s.mat_texture),
+        _pair(s.tri_uv),
+        borrowed(s.tex_pixels),
+        borrowed(s.tex_info),
+        borrowed(s.tex_scale),
         borrowed(s.light_kind),
         borrowed(s.light_inst),
         borrowed(s.light_tri),

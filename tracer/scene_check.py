@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from tracer import config
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 from tracer.scene_model import NODE_KINDS, Animation, Mesh, Node, SceneState
@@ -17,7 +18,8 @@ from tracer.scene_model import NODE_KINDS, Animation, Mesh, Node, SceneState
 
 def check_state(state: SceneState) -> None:
     """Raise SceneError unless ``state`` is a consistent scene: typed tables, node references
-    that exist, an acyclic hierarchy, affine non-singular transforms and sane animation."""
+    that exist, an acyclic hierarchy, affine non-singular transforms, sane animation, and
+    textures that exist on meshes with UVs."""
     if not isinstance(state.version, int) or isinstance(state.version, bool):
         raise SceneError(f"version must be an integer, not {state.version!r}")
     for name, mesh in state.meshes.items():
@@ -36,6 +38,42 @@ def check_state(state: SceneState) -> None:
     _check_nodes(state)
     if state.animation is not None:
         _check_animation(state.animation, state.nodes)
+    for name, pixels in state.textures.items():
+        if not (
+            isinstance(name, str)
+            and isinstance(pixels, np.ndarray)
+            and pixels.dtype == np.uint8
+            and pixels.ndim == 3
+            and pixels.shape[2] == 3
+            and 0 < pixels.shape[0] <= config.MAX_TEXTURE_SIDE
+            and 0 < pixels.shape[1] <= config.MAX_TEXTURE_SIDE
+            and pixels.shape[0] * pixels.shape[1] <= config.MAX_TEXTURE_PIXELS
+        ):
+            raise SceneError(f"textures[{name!r}] is not a named uint8 (H, W, 3) image in limits")
+    check_textures(state)
+
+
+def check_textures(state: SceneState) -> None:
+    """Raise SceneError unless every texture a material names is one of the state's images and
+    every mesh node whose material has a texture has UVs."""
+    textured = set()
+    for name, material in state.materials.items():
+        texture = getattr(material, "texture", None)
+        if texture is None:
+            continue
+        if texture.file not in state.textures:
+            raise SceneError(
+                f"material {name!r}: its texture {texture.file!r} is not one of the scene's images"
+            )
+        textured.add(name)
+    if not textured:
+        return
+    for node in state.nodes.values():
+        if node.material in textured and state.meshes[node.mesh].uvs is None:
+            raise SceneError(
+                f"{node.name or f'node {node.id}'}: material {node.material!r} has a texture, "
+                "but the mesh has no UVs (texture coordinates)"
+            )
 
 
 def _check_nodes(state: SceneState) -> None:

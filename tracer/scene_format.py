@@ -88,8 +88,28 @@ class Transform(Strict):
         return m
 
 
+class Texture(Strict):
+    """An image that multiplies a material's base colour, looked up through the mesh's UVs with
+    bilinear filtering (docs/materials.md).
+
+    ``file`` is relative to the scene file (PNG, JPEG and the other formats Pillow reads);
+    colour images are sRGB-encoded and decoded to linear on load. ``u`` runs left to right and
+    ``v`` bottom to top across the image (OBJ's and OpenGL's convention; glTF files are
+    converted on load)."""
+
+    file: str = Field(min_length=1, description="Image file, relative to the scene file")
+    wrap: Literal["repeat", "clamp"] = Field(
+        default="repeat",
+        description="Outside [0, 1]: repeat the image (tiling), or clamp to its edge texels",
+    )
+    scale: tuple[Positive, Positive] = Field(
+        default=(1.0, 1.0), description="UVs are multiplied by this before the lookup (tiling)"
+    )
+
+
 class _Opaque(Strict):
-    """What every opaque material has: emission (an area light) and sidedness."""
+    """What every opaque material has: emission (an area light), sidedness and an optional
+    base-colour texture."""
 
     emission: Radiance = Field(
         default=(0.0, 0.0, 0.0), description="Emitted radiance, linear RGB (W sr^-1 m^-2)"
@@ -98,6 +118,11 @@ class _Opaque(Strict):
         default=True,
         description="Reflect and emit on both sides; one-sided surfaces are black from the back "
         "(the back is the side the counter-clockwise winding faces away from)",
+    )
+    texture: Texture | None = Field(
+        default=None,
+        description="An image multiplying the base colour (reflectance) through the mesh's "
+        "UVs; the mesh must have UVs",
     )
 
 
@@ -254,7 +279,12 @@ class SceneObject(Strict):
     shape: Shape | str = Field(
         description="A built-in shape, a mesh file, or a mesh file's path as a plain string"
     )
-    material: str = Field(min_length=1)
+    material: str | None = Field(
+        default=None,
+        min_length=1,
+        description="Name of a material; left out for a mesh file, the file's own materials "
+        "(glTF PBR or OBJ/MTL, docs/materials.md)",
+    )
     transform: Transform = Transform()
     kind: Literal["static", "rigid", "deformable", "dynamic"] = Field(
         default="static",
@@ -270,6 +300,12 @@ class SceneObject(Strict):
     @classmethod
     def _path_shorthand(cls, value):
         return {"type": "file", "path": value} if isinstance(value, str) else value
+
+    @model_validator(mode="after")
+    def _check(self) -> "SceneObject":
+        if self.material is None and not isinstance(self.shape, MeshFile):
+            raise ValueError("a built-in shape needs a material (only a mesh file may use its own)")
+        return self
 
 
 class Camera(Strict):
@@ -310,6 +346,7 @@ EffectName = Literal[
     "indirect",
     "refraction",
     "absorption",
+    "textures",
 ]
 """Effects a user may switch off (docs/effects.md)."""
 
@@ -571,7 +608,7 @@ class SceneFile(Strict):
     @model_validator(mode="after")
     def _check_references(self) -> "SceneFile":
         for i, obj in enumerate(self.objects):
-            if obj.material not in self.materials:
+            if obj.material is not None and obj.material not in self.materials:
                 known = ", ".join(sorted(self.materials))
                 raise ValueError(
                     f"objects[{i}] uses material {obj.material!r}, which is not defined "

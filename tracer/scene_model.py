@@ -33,19 +33,23 @@ def frozen_array(values, dtype) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
-    """Triangles in object space: ``vertices`` float64 (V, 3), ``faces`` int64 (F, 3), both
-    read-only. Build with :func:`make_mesh`, which validates."""
+    """Triangles in object space: ``vertices`` float64 (V, 3), ``faces`` int64 (F, 3) and
+    optionally ``uvs`` float64 (V, 2), texture coordinates per vertex (``u`` left to right,
+    ``v`` bottom to top of an image); all read-only. Build with :func:`make_mesh`, which
+    validates."""
 
     vertices: np.ndarray
     faces: np.ndarray
+    uvs: np.ndarray | None = None
 
     @property
     def triangles(self) -> int:
         return int(self.faces.shape[0])
 
 
-def make_mesh(vertices, faces, label: str = "mesh") -> Mesh:
-    """A validated mesh: at least one triangle, finite coordinates, indices in range."""
+def make_mesh(vertices, faces, label: str = "mesh", uvs=None) -> Mesh:
+    """A validated mesh: at least one triangle, finite coordinates, indices in range, and
+    ``uvs`` (if given) one finite pair per vertex."""
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
@@ -58,7 +62,17 @@ def make_mesh(vertices, faces, label: str = "mesh") -> Mesh:
         raise SceneError(f"{label}: face indices must be integers")
     if faces.min() < 0 or faces.max() >= vertices.shape[0]:
         raise SceneError(f"{label}: a face refers to a vertex that does not exist")
-    return Mesh(frozen_array(vertices, np.float64), frozen_array(faces, np.int64))
+    if uvs is not None:
+        uvs = np.asarray(uvs, dtype=np.float64)
+        if uvs.shape != (vertices.shape[0], 2):
+            raise SceneError(
+                f"{label}: UVs must be one (u, v) pair per vertex: shape ({vertices.shape[0]}, "
+                f"2), not {uvs.shape}"
+            )
+        if not np.isfinite(uvs).all():
+            raise SceneError(f"{label}: the mesh has NaN or infinite UVs")
+        uvs = frozen_array(uvs, np.float64)
+    return Mesh(frozen_array(vertices, np.float64), frozen_array(faces, np.int64), uvs)
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,6 +140,9 @@ class SceneState:
     animation: Animation | None = None
     lights: tuple[fmt.Light, ...] = ()
     """Point, spot and sun lights, in world space (emitting surfaces are materials)."""
+    textures: Mapping[str, np.ndarray] = field(default_factory=dict)
+    """Images by the name a material's ``texture.file`` gives: uint8 (H, W, 3), sRGB-encoded,
+    row 0 the top of the image, read-only (``tracer.textures``)."""
 
     def world_transform(self, node_id: int) -> np.ndarray:
         """The node's transform to world space: its parents' transforms times its own."""

@@ -24,6 +24,7 @@ from pydantic_core import PydanticCustomError
 
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
+from tracer.scene_check import check_textures
 from tracer.scene_model import (
     Animation,
     Mesh,
@@ -85,6 +86,21 @@ def _faces(value) -> np.ndarray:
     return frozen_array(array, np.int64)
 
 
+def _uvs(value) -> np.ndarray:
+    try:
+        array = np.asarray(value)
+    except (ValueError, TypeError):
+        raise _invalid("uvs must be a rectangular (N, 2) array") from None
+    if array.ndim != 2 or array.shape[1] != 2:
+        raise _invalid(f"uvs must have shape (N, 2), not {array.shape}")
+    if array.dtype.kind not in "iuf":
+        raise _invalid("uvs must be numbers")
+    array = frozen_array(array, np.float64)
+    if not np.isfinite(array).all():
+        raise _invalid("uvs must be finite (no NaN or infinity)")
+    return array
+
+
 NodeRef = Annotated[int | str, PlainValidator(_node_ref)]
 NodeId = Annotated[int, PlainValidator(_node_id)]
 Name = Annotated[str, Field(min_length=1, max_length=200)]
@@ -93,6 +109,8 @@ Vertices = Annotated[np.ndarray, PlainValidator(_vertices)]
 """float64 (V, 3), read-only; given as nested lists or any numeric array."""
 Faces = Annotated[np.ndarray, PlainValidator(_faces)]
 """int64 (F, 3), read-only; given as nested lists or any integer array."""
+UVs = Annotated[np.ndarray, PlainValidator(_uvs)]
+"""float64 (V, 2), read-only: texture coordinates per vertex."""
 
 
 class _Op(BaseModel):
@@ -135,7 +153,8 @@ class SetTransform(_Op):
 
 
 class SetMaterial(_Op):
-    """Add a material definition or replace one."""
+    """Add a material definition or replace one. A texture must name one of the scene's images
+    (``texture.file`` as the scene loaded it)."""
 
     op: Literal["set_material"] = "set_material"
     name: Name
@@ -224,17 +243,20 @@ class SetRender(_Op):
 
 
 class AddMesh(_Op):
-    """Add a mesh under a new name."""
+    """Add a mesh under a new name (``uvs``: texture coordinates per vertex, optional)."""
 
     op: Literal["add_mesh"] = "add_mesh"
     mesh: Name
     vertices: Vertices
     faces: Faces
+    uvs: UVs | None = None
 
     def _apply(self, draft: "_Draft") -> None:
         if self.mesh in draft.meshes:
             raise SceneError(f"mesh {self.mesh!r} already exists (replace_mesh changes it)")
-        draft.table("meshes")[self.mesh] = make_mesh(self.vertices, self.faces, _label(self.mesh))
+        draft.table("meshes")[self.mesh] = make_mesh(
+            self.vertices, self.faces, _label(self.mesh), self.uvs
+        )
 
 
 class RemoveMesh(_Op):
@@ -256,8 +278,8 @@ class RemoveMesh(_Op):
 
 
 class UpdateVertices(_Op):
-    """Move a mesh's vertices, keeping its faces (a deformable mesh). The new mesh shares the
-    old one's face array."""
+    """Move a mesh's vertices, keeping its faces and UVs (a deformable mesh). The new mesh
+    shares the old one's face and UV arrays."""
 
     op: Literal["update_vertices"] = "update_vertices"
     mesh: Name
@@ -269,20 +291,23 @@ class UpdateVertices(_Op):
         if got != have:
             raise SceneError(f"mesh {self.mesh!r} has {have} vertices, got {got}")
         # Same count, faces already valid and vertices already checked: nothing to revalidate.
-        draft.table("meshes")[self.mesh] = Mesh(self.vertices, mesh.faces)
+        draft.table("meshes")[self.mesh] = Mesh(self.vertices, mesh.faces, mesh.uvs)
 
 
 class ReplaceMesh(_Op):
-    """Replace a mesh's vertices and faces (a dynamic mesh: its topology changes)."""
+    """Replace a mesh's vertices, faces and UVs (a dynamic mesh: its topology changes)."""
 
     op: Literal["replace_mesh"] = "replace_mesh"
     mesh: Name
     vertices: Vertices
     faces: Faces
+    uvs: UVs | None = None
 
     def _apply(self, draft: "_Draft") -> None:
         draft.mesh(self.mesh)
-        draft.table("meshes")[self.mesh] = make_mesh(self.vertices, self.faces, _label(self.mesh))
+        draft.table("meshes")[self.mesh] = make_mesh(
+            self.vertices, self.faces, _label(self.mesh), self.uvs
+        )
 
 
 class AddNode(_Op):
@@ -483,7 +508,8 @@ class _Draft:
 def apply_ops(state: SceneState, ops: Iterable[Op]) -> SceneState:
     """``state`` with ``ops`` applied in order; it keeps ``state.version``.
 
-    Raises SceneError naming the failing op's index and kind; the input is left as it was.
+    Raises SceneError naming the failing op's index and kind, or for textures the ops leave
+    without their image or UVs (``scene_check.check_textures``); the input is left as it was.
     """
     draft = _Draft(state)
     for index, op in enumerate(ops):
@@ -493,7 +519,9 @@ def apply_ops(state: SceneState, ops: Iterable[Op]) -> SceneState:
             op._apply(draft)
         except SceneError as error:
             raise SceneError(f"op {index} ({op.op}): {error}") from error
-    return draft.result()
+    result = draft.result()
+    check_textures(result)
+    return result
 
 
 def parse_op(data: Mapping | Op) -> Op:

@@ -1,4 +1,5 @@
-"""Built-in shapes as (vertices float64 (V, 3), faces int64 (F, 3)), counter-clockwise outward."""
+"""Built-in shapes as (vertices float64 (V, 3), faces int64 (F, 3)), counter-clockwise outward,
+and the UVs of those that have them (rectangles and planes: the unit square across the shape)."""
 
 import numpy as np
 import trimesh
@@ -43,3 +44,21 @@ def shape_mesh(shape) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(shape, fmt.Plane):
         return plane(shape.size)
     raise TypeError(f"not a built-in shape: {shape!r}")
+
+
+RECTANGLE_UVS = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+"""UVs of ``rectangle``'s vertices: ``u`` along +x, ``v`` along +y (an image seen from the
+front stands upright)."""
+PLANE_UVS = np.array([[0.0, 1.0], [0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+"""UVs of ``plane``'s vertices: ``u`` along +x, ``v`` along -z (an image seen from above, with
+-z up, is upright)."""
+
+
+def shape_uvs(shape) -> np.ndarray | None:
+    """UVs per vertex of a built-in shape (float64 (V, 2)), or None if it has none (box and
+    sphere)."""
+    if isinstance(shape, fmt.Rectangle):
+        return RECTANGLE_UVS
+    if isinstance(shape, fmt.Plane):
+        return PLANE_UVS
+    return None

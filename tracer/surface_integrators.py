@@ -5,7 +5,8 @@ Ambient occlusion follows Demoullin (thesis ch. 3): from the first hit, ``ao_sam
 cosine-weighted directions about the normal facing the camera, each an any-hit query of length
 ``ao_distance`` (a fraction of the scene's bounding-box diagonal); the value is the fraction
 that escape, an estimate of ``1/pi * integral V(w) cos dw``. The debug outputs are the first
-hit's reflectance colour (white for dielectrics), its normal facing the camera mapped to
+hit's base colour with its texture (white for dielectrics; for conductors their reflectance at
+normal incidence), its normal facing the camera mapped to
 ``0.5 n + 0.5``, and the distance along the camera ray. Rays that hit nothing give 0. Every
 output averages its camera samples like the path tracer (box filter, same jitter and lens).
 
@@ -32,6 +33,7 @@ from tracer.scene_intersect import (
     spawn,
     surface,
 )
+from tracer.textures import textured_albedo
 from tracer.vecmath import coordinate_system, dot, to_world
 
 AO = 0
@@ -56,6 +58,7 @@ def render_surface(
     output,
     ao_samples,
     ao_length,
+    textures,
     first,
     stride,
     stack_node,
@@ -66,8 +69,8 @@ def render_surface(
     """Render ``output`` (``AO``, ``ALBEDO``, ``NORMAL`` or ``DEPTH``) for pixel blocks
     ``first, first + stride, ...`` of lines [y0, y1); arguments as the path kernel's
     (``integrator.path_kernel``), plus ``ao_samples`` occlusion rays per camera sample of
-    length ``ao_length`` (render-space
-    units)."""
+    length ``ao_length`` (render-space units), and ``textures``: whether the albedo output
+    applies base-colour textures (the effect plan's ``TEXTURES``)."""
     s = borrow_scene(scene)
     camera = borrowed(camera)
     stack_node = borrowed(stack_node)
@@ -98,7 +101,9 @@ def render_surface(
                 elif output == ALBEDO:
                     albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
                               np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
-                    value = bsdf_albedo(s.mat_kind[mat], albedo)
+                    if textures:
+                        albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
+                    value = bsdf_albedo(s.mat_kind[mat], albedo, s.mat_param[mat])
                 else:
                     dist = offset_distance(s, k, p_o, err_o, n_o)
                     u_s, u_t = coordinate_system(n)

@@ -231,6 +231,26 @@ def test_plan_prints_the_effect_plan(capsys, tmp_path):
     assert json.loads(out)["reasons"]["shadows"] == "switched off in render.effects"
 
 
+def test_plan_and_info_show_textures(capsys, tmp_path):
+    """The textured sample scene's plan runs texture lookups and says why; `info` lists its
+    images (width, height); a missing texture is a usage error (exit code 2), not a crash."""
+    textured = ROOT / "scenes" / "textured" / "scene.json"
+    code, out, err = run(capsys, "plan", textured)
+    assert code == 0, err
+    report = json.loads(out)
+    assert "textures" in report["effects"]
+    assert report["reasons"]["textures"] == "textured materials"
+    code, out, err = run(capsys, "plan", ROOT / "scenes" / "cornell-box" / "scene.json")
+    assert "textures" in json.loads(out)["skipped"]
+    code, out, err = run(capsys, "info", textured)
+    assert code == 0, err
+    assert json.loads(out)["textures"]["tiles.png"] == [32, 32]
+    data = tiny_scene()
+    data["materials"]["grey"]["texture"] = {"file": "missing.png"}
+    code, out, err = run(capsys, "info", write_json(tmp_path / "scene.json", data))
+    assert code == 2 and "missing.png" in err
+
+
 def test_render_integrator_option(capsys, tmp_path, tiny_scene_file):
     """--integrator reaches the renderer: the albedo output is the library's."""
     out = tmp_path / "albedo.npy"
