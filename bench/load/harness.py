@@ -14,6 +14,7 @@ The per-endpoint table comes from locust's ``--csv`` statistics; the counters (j
 submitted, frames streamed, ...) from the locustfile's ``--results-file``.
 """
 
+import contextlib
 import csv
 import io
 import json
@@ -421,3 +422,24 @@ def format_run(run: LoadRun) -> str:
 
 def _cell(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}"
+
+
+@contextlib.contextmanager
+def service(workdir: Path, nodes: str = "embedded", tracers: int = 2):
+    """A server to load: ``embedded`` (``tilerender serve --tracers N --threads 1``, its own
+    Ray) or ``ray-start`` (a 0-CPU head, N one-CPU ``ray start`` workers and the API joined
+    to the head: the compose shape). Yields ``(api, topology or None)``; stops everything."""
+    from bench.load.topology import Topology, serve_embedded
+
+    if nodes == "embedded":
+        api = serve_embedded(workdir, workdir / "data", "--tracers", str(tracers), "--threads", "1")
+        try:
+            yield api, None
+        finally:
+            api.stop()
+        return
+    with Topology(workdir) as topology:
+        topology.start_head(num_cpus=0)
+        for _ in range(tracers):
+            topology.add_worker(num_cpus=1)
+        yield topology.start_api(workdir / "data"), topology
