@@ -94,6 +94,9 @@ trap 'exit 130' INT TERM
 # 1. The engine -------------------------------------------------------------------------------
 if docker info >/dev/null 2>&1; then
     log "using the Docker engine at ${DOCKER_HOST:-the default socket}"
+elif "$HERE/start-engine.sh" status 2>/dev/null; then
+    log "using the engine docker/start-engine.sh started before (it stays up)"
+    eval "$("$HERE/start-engine.sh")"
 else
     log "no Docker engine answers: starting one (docker/start-engine.sh)"
     eval "$("$HERE/start-engine.sh")"
@@ -112,7 +115,8 @@ if [ -z "${COMPOSE:-}" ]; then
         COMPOSE=$("$HERE/install-compose.sh" v1)
     fi
 fi
-log "compose: $COMPOSE ($($COMPOSE version 2>/dev/null | head -n 1))"
+VERSION=$($COMPOSE version 2>/dev/null | head -n 1) || fail "compose '$COMPOSE' does not run"
+log "compose: $COMPOSE ($VERSION)"
 phase compose
 
 # 3. The image ----------------------------------------------------------------------------------
