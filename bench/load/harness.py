@@ -41,6 +41,7 @@ SCENE_FILES = {
 SCENE_NAMES = {"load-cornell": "cornell", "load-many-lights": "many-lights"}
 """Scene name on the server (the locustfile's uploads) -> key of SCENE_FILES."""
 TERMINAL = ("done", "failed", "cancelled")
+STATUS_ROUTE = "/v1/jobs/{job_id}"
 
 
 @dataclass
@@ -83,8 +84,11 @@ class LoadRun:
     counts: dict
     locust_jobs: dict
     chaos: Chaos | None = None
+    server_status: dict = field(default_factory=dict)
+    """The server's own timing of the status route during the run (``server_quantiles``)."""
     jobs: list[dict] = field(default_factory=list)
     results: dict = field(default_factory=dict)
+    tracers: list[dict] = field(default_factory=list)
 
     @property
     def total(self) -> dict:
@@ -108,8 +112,18 @@ class LoadRun:
             "submitted (seen by locust)": self.counts.get("jobs submitted", 0),
         }
 
+    def turnaround(self) -> dict:
+        """Seconds from submission to the end of each completed job: p50, p95, max."""
+        seconds = sorted(j["finished"] - j["created"] for j in self.jobs if j["status"] == "done")
+        if not seconds:
+            return {}
+        p50, p95 = (seconds[min(len(seconds) - 1, int(q * len(seconds)))] for q in (0.5, 0.95))
+        return {"p50": p50, "p95": p95, "max": seconds[-1]}
+
     def summary(self) -> dict:
         return {
+            "server_status": self.server_status,
+            "turnaround_seconds": self.turnaround(),
             "profile": self.profile.__dict__,
             "wall_seconds": self.wall_seconds,
             "endpoints": self.endpoints,
@@ -133,6 +147,7 @@ def run_profile(
         *profile.locust_args(), "--csv", str(out_dir / "locust"), "--only-summary",
         "--loglevel", "WARNING", "--results-file", str(results_file),
     ]  # fmt: skip
+    before = route_buckets(url, STATUS_ROUTE)
     started = time.monotonic()
     with open(out_dir / "locust.log", "wb") as log:
         process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT)
@@ -152,6 +167,7 @@ def run_profile(
         log = (out_dir / "locust.log").read_text()
         raise RuntimeError(f"locust wrote no results: {log[-3000:]}")
     payload = json.loads(results_file.read_text())
+    server_status = server_quantiles(before, route_buckets(url, STATUS_ROUTE))
     return LoadRun(
         profile=profile,
         wall_seconds=wall,
@@ -160,6 +176,7 @@ def run_profile(
         counts=payload["counts"],
         locust_jobs=payload["jobs"],
         chaos=chaos,
+        server_status=server_status,
     )
 
 
@@ -192,6 +209,36 @@ def read_stats(path: Path) -> list[dict]:
 
 def _ms(text: str) -> float | None:
     return None if text in ("", "N/A") else float(text)
+
+
+def route_buckets(url: str, route: str) -> dict[float, float]:
+    """The server's own time-to-first-byte histogram of ``route`` (cumulative counts by upper
+    bound in seconds), from /metrics."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    text = httpx.get(url + "/metrics", timeout=30).text
+    buckets = {}
+    for family in text_string_to_metric_families(text):
+        if family.name != "tilerender_http_request_seconds":
+            continue
+        for sample in family.samples:
+            label = sample.labels.get("route", "")
+            # The service labels routes of nested routers without their /v1 prefix.
+            if sample.name.endswith("_bucket") and route in (label, "/v1" + label):
+                buckets[float(sample.labels["le"])] = sample.value
+    return buckets
+
+
+def server_quantiles(before: dict, after: dict, quantiles=(0.5, 0.95, 0.99)) -> dict:
+    """Upper bounds (ms) of the server-side quantiles between two ``route_buckets`` readings:
+    the smallest bucket bound below which that share of the requests answered."""
+    counts = {le: after.get(le, 0) - before.get(le, 0) for le in sorted(after)}
+    total = counts.get(float("inf"), 0)
+    out = {"requests": total}
+    for q in quantiles:
+        bound = next((le for le, n in counts.items() if total and n >= q * total), None)
+        out[f"p{round(q * 100)}_le_ms"] = None if bound is None else 1000 * bound
+    return out
 
 
 def list_jobs(http: httpx.Client) -> list[dict]:
@@ -407,6 +454,19 @@ def format_run(run: LoadRun) -> str:
     lines.append("")
     lines.append("jobs: " + ", ".join(f"{k} {v}" for k, v in jobs.items()))
     lines.append("counters: " + ", ".join(f"{k} {v}" for k, v in sorted(run.counts.items())))
+    if run.jobs and run.turnaround():
+        t = run.turnaround()
+        lines.append(
+            f"job turnaround (submitted to done): p50 {t['p50']:.2f} s, p95 {t['p95']:.2f} s, "
+            f"max {t['max']:.2f} s"
+        )
+    if run.server_status:
+        s = run.server_status
+        lines.append(
+            f"status route timed by the server (time to first byte, histogram bucket bounds): "
+            f"p50 <= {s['p50_le_ms']} ms, p95 <= {s['p95_le_ms']} ms, p99 <= {s['p99_le_ms']} ms "
+            f"over {s['requests']:.0f} requests"
+        )
     if run.results:
         r = run.results
         lines.append(
@@ -415,7 +475,8 @@ def format_run(run: LoadRun) -> str:
             f"unverified {len(r['unverified'])}"
         )
     if run.chaos is not None:
-        lines.append(f"chaos: {run.chaos.name} at {run.chaos.fired_at:.1f} s: {run.chaos.note}")
+        at = "never" if run.chaos.fired_at is None else f"at {run.chaos.fired_at:.1f} s"
+        lines.append(f"chaos: {run.chaos.name} {at}: {run.chaos.note}")
     lines.append(f"locust wall time {run.wall_seconds:.1f} s, exit code {run.returncode}")
     return "\n".join(lines)
 
@@ -443,3 +504,44 @@ def service(workdir: Path, nodes: str = "embedded", tracers: int = 2):
         for _ in range(tracers):
             topology.add_worker(num_cpus=1)
         yield topology.start_api(workdir / "data"), topology
+
+
+class CpuMeter:
+    """CPU seconds (user + system) used by the API process, each tracer (pids from
+    /v1/cluster at the start) and the whole machine, from construction to ``stop()``; the
+    machine's share is what every process on it used, other people's included."""
+
+    def __init__(self, api_pid: int, http: httpx.Client) -> None:
+        import psutil
+
+        tracers = http.get("/v1/cluster").json()["tracers"]
+        self.processes = {"api": psutil.Process(api_pid)}
+        self.processes.update({t["id"]: psutil.Process(t["pid"]) for t in tracers if t["pid"]})
+        self.start = {name: self._seconds(p) for name, p in self.processes.items()}
+        self.machine = self._machine()
+
+    @staticmethod
+    def _seconds(process) -> float | None:
+        import psutil
+
+        try:
+            times = process.cpu_times()
+        except psutil.Error:
+            return None
+        return times.user + times.system
+
+    @staticmethod
+    def _machine() -> float:
+        import psutil
+
+        times = psutil.cpu_times()
+        return times.user + times.system + times.nice
+
+    def stop(self) -> dict[str, float]:
+        used = {}
+        for name, process in self.processes.items():
+            now = self._seconds(process)
+            if now is not None and self.start[name] is not None:
+                used[name] = now - self.start[name]
+        used["machine (all processes)"] = self._machine() - self.machine
+        return used

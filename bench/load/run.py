@@ -18,6 +18,7 @@ to its reference, status p99 <= 50 ms, a full queue answers 429 (never a timeout
 """
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -81,7 +82,9 @@ def main(argv=None) -> int:
         chaos = chaos_action(args.chaos, api.url, topology)
         if chaos is not None:
             chaos.at = args.chaos_at * args.seconds
+        cpu = harness.CpuMeter(api.process.pid, http)
         run = harness.run_profile(api.url, profile, out / "locust", chaos)
+        cpu_seconds = cpu.stop()
         started = time.monotonic()
         run.jobs = harness.settle(http)
         settle_seconds = time.monotonic() - started
@@ -93,6 +96,10 @@ def main(argv=None) -> int:
             full_queue["cancelled"] = len(full_queue["cancelled"])
     print(harness.format_run(run))
     print(f"settled {settle_seconds:.1f} s after locust stopped")
+    print(
+        f"CPU seconds during the run ({run.wall_seconds:.0f} s wall): "
+        + ", ".join(f"{k} {v:.1f}" for k, v in cpu_seconds.items())
+    )
     tracers = [(t["id"], t["state"], t["failures"]) for t in cluster["tracers"]]
     print(f"tracers after the run (id, state, failures): {tracers}")
     if full_queue is not None:
@@ -122,6 +129,8 @@ def main(argv=None) -> int:
             **run.summary(),
             "warm_up_seconds": warm,
             "settle_seconds": settle_seconds,
+            "cpu_seconds": cpu_seconds,
+            "load_average_after": list(os.getloadavg()),
             "nodes": nodes,
             "tracers": cluster["tracers"],
             "full_queue": full_queue,
