@@ -47,6 +47,7 @@ from api.store import Store
 from cluster.scene_graph import SceneGraph
 from tracer.commit_codec import decode_commit, decode_state, encode_commit, encode_state
 from tracer.errors import SceneError
+from tracer.lights import mean_sky_radiance
 from tracer.loader import MESH_SUFFIXES, load_scene
 from tracer.scene_model import SceneState
 from tracer.scene_ops import Commit
@@ -325,7 +326,7 @@ def effects(state: SceneState) -> dict:
         m for m in used if m in state.materials and max(state.materials[m].emission) > 0
     )
     reflective = any(max(state.materials[m].reflectance) > 0 for m in used if m in state.materials)
-    sky = max(state.sky.radiance) > 0
+    sky = max(mean_sky_radiance(state.sky)) > 0
     depth = state.render.max_depth
     return {
         "emitters_seen": bool(emissive) or sky,
@@ -349,7 +350,7 @@ def summary(state: SceneState) -> dict:
         "bounds": None if box is None else {"min": box[0], "max": box[1]},
         "camera": state.camera.model_dump(),
         "render": state.render.model_dump(),
-        "sky": list(state.sky.radiance),
+        "sky": list(mean_sky_radiance(state.sky)),
         "animation": None
         if animation is None
         else {
