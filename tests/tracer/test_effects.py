@@ -181,6 +181,7 @@ EFFECT_SCENES = [
     ("many-lights", "area_lights", None),
     ("many-lights", "glossy", ["steel", "teal-plastic"]),
     ("veach-mis", "glossy", ["plate-0", "plate-1", "plate-2", "plate-3"]),
+    ("environment", "sky", None),
 ]
 """Scene, effect, and the materials whose pixels show it (None: the whole image)."""
 EFFECT_SIZE = (96, 64)
