@@ -1,7 +1,7 @@
 """Write ``sky.exr``: the procedural HDR environment map of this sample scene.
 
-A clear sky (blue at the zenith, pale at the horizon, a glow around the sun), a dim ground
-below the horizon, and a small, very bright sun: 1.5 degrees in radius, giving about four times
+A clear sky (blue at the zenith, pale at the horizon, a glow around the sun), a ground
+below the horizon, and a small, very bright sun: 1.5 degrees in radius, giving about three times
 the sky's irradiance from about 0.02% of the sphere, the case importance sampling is for.
 Equirectangular with the convention of docs/scene-format.md (top row +y, image centre -z).
 Half floats, ZIP-compressed; deterministic. Licence: the project's own.
@@ -21,7 +21,8 @@ SUN_IRRADIANCE = np.array([4.2, 3.9, 3.4])
 """Irradiance on a surface facing the sun (W m^-2); the disc's radiance follows from it."""
 ZENITH = np.array([0.10, 0.22, 0.55])
 HORIZON = np.array([0.62, 0.68, 0.78])
-GROUND = np.array([0.10, 0.09, 0.075])
+GROUND = np.array([0.42, 0.39, 0.34])
+"""About the radiance of the lit ground plane, so the map's ground continues it at the horizon."""
 
 
 def directions(width: int, height: int) -> np.ndarray:
