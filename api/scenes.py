@@ -44,6 +44,7 @@ from api.store import Store
 from cluster.scene_graph import SceneGraph
 from tracer.commit_codec import decode_commit, decode_state, encode_commit, encode_state
 from tracer.errors import SceneError
+from tracer.lights import mean_sky_radiance
 from tracer.loader import MESH_SUFFIXES, load_scene
 from tracer.scene_model import SceneState
 from tracer.scene_ops import Commit
@@ -310,7 +311,7 @@ def summary(state: SceneState) -> dict:
         "bounds": None if box is None else {"min": box[0], "max": box[1]},
         "camera": state.camera.model_dump(),
         "render": state.render.model_dump(),
-        "sky": list(state.sky.radiance),
+        "sky": list(mean_sky_radiance(state.sky)),
         "animation": None
         if animation is None
         else {

@@ -28,6 +28,7 @@ import pydantic
 from pydantic import BaseModel, ConfigDict, Field
 
 from tracer import scene_format as fmt
+from tracer.environment import EnvironmentMap, check_image
 from tracer.errors import SceneError
 from tracer.loader import format_validation_error
 from tracer.scene_check import check_state
@@ -84,6 +85,8 @@ class _StateHeader(_Strict):
     camera: fmt.Camera
     render: fmt.RenderSettings
     sky: fmt.Sky
+    environment: _ArrayIndex | None = None
+    """An environment sky's image (H, W, 3)."""
     lights: list[fmt.Light]
     materials: list[tuple[str, fmt.Material]]
     meshes: list[tuple[str, _ArrayIndex, _ArrayIndex]]
@@ -135,12 +138,16 @@ def encode_state(state: SceneState) -> bytes:
     arrays = _Arrays()
     nodes = list(state.nodes.values())
     transforms = np.stack([n.transform for n in nodes]) if nodes else np.zeros((0, 4, 4))
+    sky, environment = state.sky, None
+    if isinstance(sky, EnvironmentMap):
+        sky, environment = sky.model, arrays.add(sky.image)  # float32 -> float64 exactly
     header = {
         "kind": "state",
         "version": state.version,
         "camera": state.camera.model_dump(),
         "render": state.render.model_dump(),
-        "sky": state.sky.model_dump(),
+        "sky": sky.model_dump(),
+        "environment": environment,
         "lights": [light.model_dump() for light in state.lights],
         "materials": [[name, m.model_dump()] for name, m in state.materials.items()],
         "meshes": [
@@ -265,11 +272,23 @@ def _build_state(header: _StateHeader, arrays: list[np.ndarray]) -> SceneState:
         nodes=nodes,
         camera=header.camera,
         render=header.render,
-        sky=header.sky,
+        sky=_decode_sky(header, arrays),
         lights=tuple(header.lights),
         animation=_decode_animation(header.animation, arrays),
         textures=textures,
     )
+
+
+def _decode_sky(header: _StateHeader, arrays: list[np.ndarray]):
+    """The header's sky, an environment sky with its image."""
+    if not isinstance(header.sky, fmt.EnvironmentSky):
+        if header.environment is not None:
+            raise SceneError("an environment image without an environment sky")
+        return header.sky
+    if header.environment is None:
+        raise SceneError("the environment sky has no image")
+    image = _array(arrays, header.environment, "<f8", (None, None, 3))
+    return EnvironmentMap(header.sky, check_image(image, f"sky: {header.sky.file}"))
 
 
 def _decode_animation(header: _AnimationHeader | None, arrays) -> Animation | None:

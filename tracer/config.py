@@ -36,6 +36,8 @@ MAX_PIXELS = 64 * 1024 * 1024
 MAX_SPP = 1 << 20
 MAX_DEPTH = 1024
 MAX_SPHERE_SUBDIVISIONS = 8
+MAX_ENVIRONMENT_PIXELS = 16 * 1024 * 1024
+"""Largest environment map (pixels): its image and sampling tables then take about 320 MB."""
 
 # --- Debug outputs ---------------------------------------------------------------------------
 COST_HEATMAP_MAX = 65536

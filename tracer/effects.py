@@ -23,7 +23,8 @@ POINT_LIGHTS = 1 << 1
 SUN = 1 << 2
 """Sun lights: light samples, and the disc where rays that escape see it."""
 SKY = 1 << 3
-"""The sky: its radiance where rays escape, and light samples on it."""
+"""The sky (constant, gradient or an environment map): its radiance where rays escape, and light
+samples on it."""
 SHADOWS = 1 << 4
 """Shadow rays for light samples (off: lights shine through everything)."""
 INDIRECT = 1 << 5

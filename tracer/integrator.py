@@ -202,7 +202,8 @@ def path_kernel(materials: bool, lights: bool):
                         if k < 0:
                             if lights and plan & (effects.SKY | effects.SUN):
                                 weighted = mis and depth > 1 and not delta_prev and has_lights
-                                Le = environment_radiance(s.light_data, s.light_env, s.sky, d,
+                                Le = environment_radiance(s.light_data, s.light_env, s.sky,
+                                                          s.sky_image, s.sky_rows, s.sky_cols, d,
                                                           p_bsdf_prev, weighted)  # fmt: skip
                                 L = (L[0] + beta[0] * Le[0], L[1] + beta[1] * Le[1],
                                      L[2] + beta[2] * Le[2])  # fmt: skip
@@ -265,8 +266,8 @@ def path_kernel(materials: bool, lights: bool):
                             other = lights and s.light_kind[e] != TRIANGLE
                             if lights and other:
                                 wi, q_l, finite, le, p_light, delta_l = sample_distant_or_point(
-                                    s.light_data, s.sky, s.light_kind[e], s.light_tri[e], p, u1,
-                                    u2,
+                                    s.light_data, s.sky, s.sky_image, s.sky_rows, s.sky_cols,
+                                    s.light_kind[e], s.light_tri[e], p, u1, u2,
                                 )  # fmt: skip
                                 ok = p_light > 0.0
                             else:

@@ -10,7 +10,7 @@ in the units of an emissive triangle's, mean emitted radiance times area (power 
 | point | 4 mean(I) | its position (a delta light) |
 | spot | 2 mean(I) ((1 - cos_inner) + (cos_inner - cos_outer) / 2) | its position |
 | sun | mean(E) R^2 | a direction uniformly in its cone (radius 0: the direction, a delta light) |
-| sky | 4 pi R^2 mean(L) | a direction uniformly on the sphere |
+| sky | 4 pi R^2 mean(L) | a direction uniformly on the sphere (an environment map: by luminance) |
 
 (R is the radius of the scene's bounding sphere; the infinite lights' weights are pbrt-v4's
 ``Phi`` over pi.) Emissive triangles come first, ordered by (instance, triangle index), never
@@ -19,15 +19,26 @@ then point, spot and sun lights in file order; the sky last.
 """
 
 import math
+import weakref
 from typing import NamedTuple
 
 import numpy as np
 
 from tracer import scene_format as fmt
+from tracer.environment import EnvironmentMap
+from tracer.environment_light import (
+    EnvironmentTables,
+    empty_tables,
+    environment_lookup,
+    environment_sample,
+    sampling_tables,
+)
+from tracer.errors import SceneError
 from tracer.intersect import geometric_normal, hit_point
 from tracer.jit import jit, jit_inline
 from tracer.sampling import (
     INV_PI,
+    power_heuristic,
     square_to_uniform_cone,
     square_to_uniform_sphere,
     square_to_uniform_triangle,
@@ -60,19 +71,24 @@ COS_INNER = 10
 SELECT = 11
 ONE_MINUS_COS = 12
 
-SKY_SIZE = 12
-"""``sky`` layout: ``SKY_TYPE`` (0 black, 1 constant, 2 gradient), ``ZENITH`` (3; the constant
-sky's radiance), ``HORIZON`` (3), ``GROUND`` (3), ``SKY_SELECT`` (its selection probability, 0 if
-light sampling never picks it), ``SKY_MEAN`` (mean radiance over the sphere)."""
+SKY_SIZE = 14
+"""``sky`` layout: ``SKY_TYPE`` (0 black, 1 constant, 2 gradient, 3 environment map), ``ZENITH``
+(3; the constant sky's radiance), ``HORIZON`` (3), ``GROUND`` (3), ``SKY_SELECT`` (its selection
+probability, 0 if light sampling never picks it), ``SKY_MEAN`` (mean radiance over the sphere),
+``ENV_COS`` and ``ENV_SIN`` (cosine and sine of an environment map's rotation about +y; its
+pixels and sampling tables are the ``sky_image``, ``sky_rows`` and ``sky_cols`` arrays)."""
 SKY_TYPE = 0
 ZENITH = 1
 HORIZON = 4
 GROUND = 7
 SKY_SELECT = 10
 SKY_MEAN = 11
+ENV_COS = 12
+ENV_SIN = 13
 SKY_BLACK = 0
 SKY_CONSTANT = 1
 SKY_GRADIENT = 2
+SKY_ENVIRONMENT = 3
 
 
 class LightTable(NamedTuple):
@@ -81,7 +97,7 @@ class LightTable(NamedTuple):
     ``kind``, ``inst`` and ``tri`` int32 (L,): the light kind, and for triangles the instance
     and row in that instance's pool (else ``tri`` is the row of ``data``, -1 for the sky);
     ``weight`` float64 (L,): selection weights; ``data`` float64 (P, ``LIGHT_DATA``); ``sky``
-    float64 (``SKY_SIZE``,).
+    float64 (``SKY_SIZE``,); ``sky_tables`` an environment map's pixels and sampling tables.
     """
 
     kind: np.ndarray
@@ -90,6 +106,7 @@ class LightTable(NamedTuple):
     weight: np.ndarray
     data: np.ndarray
     sky: np.ndarray
+    sky_tables: EnvironmentTables
 
 
 class LightArrays(NamedTuple):
@@ -107,6 +124,10 @@ class LightArrays(NamedTuple):
     """int32 (E,): rows of ``data`` for suns with a radius (rays that miss everything see
     them)."""
     sky: np.ndarray
+    sky_image: np.ndarray
+    sky_rows: np.ndarray
+    sky_cols: np.ndarray
+    """An environment map's ``EnvironmentTables`` (unread unless the sky is one)."""
 
 
 def emission_means(emission: np.ndarray) -> np.ndarray:
@@ -156,10 +177,47 @@ def _mean(rgb) -> float:
     return (float(rgb[0]) + float(rgb[1]) + float(rgb[2])) / 3.0
 
 
-def sky_row(sky: fmt.Sky) -> np.ndarray:
-    """The ``sky`` array of a sky model (selection probability still 0)."""
-    row = np.zeros(SKY_SIZE)
+_TABLES: "weakref.WeakKeyDictionary[EnvironmentMap, EnvironmentTables]" = (
+    weakref.WeakKeyDictionary()
+)
+"""Each environment map's tables, built once: states share the map, so recompiling a scene
+after an edit does not pass over its pixels again."""
+
+
+def environment_tables(sky: EnvironmentMap) -> EnvironmentTables:
+    """The sampling tables of an environment map (cached for the map's lifetime)."""
+    tables = _TABLES.get(sky)
+    if tables is None:
+        tables = sampling_tables(sky.image, sky.model.scale)
+        _TABLES[sky] = tables
+    return tables
+
+
+def mean_sky_radiance(sky: fmt.Sky | EnvironmentMap) -> tuple[float, float, float]:
+    """The sky's radiance averaged over the sphere, per channel (a constant sky's own)."""
+    if isinstance(sky, EnvironmentMap):
+        return sky.mean_radiance()
     if isinstance(sky, fmt.GradientSky):
+        parts = zip(sky.horizon, sky.zenith, sky.ground, strict=True)
+        return tuple(0.25 * (h + z) + 0.5 * g for h, z, g in parts)
+    if isinstance(sky, fmt.EnvironmentSky):
+        raise SceneError(f"{sky.file}: an environment sky needs its image (tracer.environment)")
+    return tuple(float(c) for c in sky.radiance)
+
+
+def sky_row(sky: fmt.Sky | EnvironmentMap) -> np.ndarray:
+    """The ``sky`` array of a sky (selection probability still 0)."""
+    row = np.zeros(SKY_SIZE)
+    if isinstance(sky, EnvironmentMap):
+        mean = _mean(sky.mean_radiance())
+        if mean > 0.0:
+            row[SKY_TYPE] = SKY_ENVIRONMENT
+            row[SKY_MEAN] = mean
+            row[ENV_COS] = math.cos(math.radians(sky.model.rotation))
+            row[ENV_SIN] = math.sin(math.radians(sky.model.rotation))
+    elif isinstance(sky, fmt.EnvironmentSky):
+        raise SceneError(f"{sky.file}: an environment sky needs its image (tracer.environment)")
+    elif isinstance(sky, fmt.GradientSky):
         row[SKY_TYPE] = SKY_GRADIENT
         row[ZENITH : ZENITH + 3] = sky.zenith
         row[HORIZON : HORIZON + 3] = sky.horizon
@@ -209,7 +267,7 @@ def build_light_table(
     instances: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
     mat_emission: np.ndarray,
     lights: tuple = (),
-    sky: fmt.Sky | None = None,
+    sky: fmt.Sky | EnvironmentMap | None = None,
     origin: np.ndarray | None = None,
     radius: float = 1.0,
 ) -> LightTable:
@@ -227,6 +285,9 @@ def build_light_table(
         weights.append(np.array([w]))
         rows.append(row)
     sky_array = sky_row(sky if sky is not None else fmt.ConstantSky())
+    tables = empty_tables()
+    if sky_array[SKY_TYPE] == SKY_ENVIRONMENT:
+        tables = environment_tables(sky)
     if sky_array[SKY_TYPE] != SKY_BLACK:
         kinds.append(np.array([SKY], np.int32))
         insts.append(np.array([-1], np.int32))
@@ -240,14 +301,17 @@ def build_light_table(
         np.concatenate(weights),
         data,
         sky_array,
+        tables,
     )
 
 
 def scene_fields(light: LightArrays) -> dict[str, np.ndarray]:
-    """``light`` as the ``SceneArrays`` fields it fills (``light_kind``, ..., ``sky``)."""
-    fields = {f"light_{name}": value for name, value in light._asdict().items()}
-    fields["sky"] = fields.pop("light_sky")
-    return fields
+    """``light`` as the ``SceneArrays`` fields it fills (``light_kind``, ..., ``sky``,
+    ``sky_image``, ...)."""
+    return {
+        name if name.startswith("sky") else f"light_{name}": value
+        for name, value in light._asdict().items()
+    }
 
 
 def light_arrays(table: LightTable, kinds: frozenset[int] | None = None) -> LightArrays:
@@ -268,7 +332,7 @@ def light_arrays(table: LightTable, kinds: frozenset[int] | None = None) -> Ligh
         empty = np.zeros(0, np.int32)
         env = np.zeros(0, np.int32)
         return LightArrays(empty, empty.copy(), empty.copy(), np.zeros(0), np.zeros(1), data, env,
-                           sky)  # fmt: skip
+                           sky, *table.sky_tables)  # fmt: skip
     weights = table.weight[keep]
     total = float(weights.sum())
     cdf = np.cumsum(weights) / total
@@ -284,7 +348,8 @@ def light_arrays(table: LightTable, kinds: frozenset[int] | None = None) -> Ligh
         [r for k, r in zip(kind, tri, strict=True) if k == SUN and data[r, ONE_MINUS_COS] > 0.0],
         dtype=np.int32,
     )
-    return LightArrays(kind, table.inst[keep], tri, cdf, np.array([total]), data, env, sky)
+    return LightArrays(kind, table.inst[keep], tri, cdf, np.array([total]), data, env, sky,
+                       *table.sky_tables)  # fmt: skip
 
 
 @jit_inline
@@ -361,8 +426,9 @@ def smoothstep(a, b, x):
 
 
 @jit
-def sample_distant_or_point(data, sky, kind, row, p, u1, u2):
-    """Sample a point, spot, sun or sky light as seen from ``p``.
+def sample_distant_or_point(data, sky, sky_image, sky_rows, sky_cols, kind, row, p, u1, u2):
+    """Sample a point, spot, sun or sky light as seen from ``p`` (the ``sky_*`` arrays are an
+    environment map's tables).
 
     Returns ``(wi, target, finite, Li, pdf, delta)``: the unit direction toward the light, the
     light's position (finite lights; else unused), whether it is at a finite distance, the
@@ -372,6 +438,10 @@ def sample_distant_or_point(data, sky, kind, row, p, u1, u2):
     """
     zero = (0.0, 0.0, 0.0)
     if kind == SKY:
+        if sky[SKY_TYPE] == SKY_ENVIRONMENT:
+            wi, L, pdf = environment_sample(sky_image, sky_rows, sky_cols, sky[ENV_COS],
+                                            sky[ENV_SIN], u1, u2)  # fmt: skip
+            return wi, p, False, L, sky[SKY_SELECT] * pdf, False
         wi = square_to_uniform_sphere(u1, u2)
         pdf = sky[SKY_SELECT] * 0.25 * INV_PI
         return wi, p, False, sky_radiance(sky, wi), pdf, False
@@ -401,14 +471,18 @@ def sample_distant_or_point(data, sky, kind, row, p, u1, u2):
 
 
 @jit
-def environment_radiance(data, env, sky, d, p_bsdf, mis):
+def environment_radiance(data, env, sky, sky_image, sky_rows, sky_cols, d, p_bsdf, mis):
     """Radiance arriving along ``-d`` from everything at infinity (sky and sun discs), each
     weighted against light sampling by the power heuristic when ``mis`` (``p_bsdf`` is the
     solid-angle density with which the BSDF chose ``d``)."""
-    L = sky_radiance(sky, d)
+    if sky[SKY_TYPE] == SKY_ENVIRONMENT:
+        L, p_sky = environment_lookup(sky_image, sky_rows, sky_cols, sky[ENV_COS], sky[ENV_SIN],
+                                      d)  # fmt: skip
+    else:
+        L = sky_radiance(sky, d)
+        p_sky = 0.25 * INV_PI
     if mis and sky[SKY_SELECT] > 0.0:
-        p_light = sky[SKY_SELECT] * 0.25 * INV_PI
-        w = p_bsdf * p_bsdf / (p_bsdf * p_bsdf + p_light * p_light)
+        w = power_heuristic(p_bsdf, sky[SKY_SELECT] * p_sky)
         L = (L[0] * w, L[1] * w, L[2] * w)
     for i in range(env.shape[0]):
         row = env[i]

@@ -24,6 +24,7 @@ from tracer.animation import (
     node_transform,
     quaternion_from_euler_xyz,
 )
+from tracer.environment import EnvironmentMap, read_environment_image
 from tracer.errors import SceneError
 from tracer.mesh_files import FileModel, load_file_model, load_mesh_file
 from tracer.scene_check import check_textures
@@ -120,6 +121,18 @@ def resolve_reference(scene_dir: Path, reference: str) -> Path:
     if not target.is_file():
         raise SceneError(f"{reference}: no such file next to the scene")
     return target
+
+
+def load_sky(sky: fmt.Sky, scene_dir: Path) -> fmt.Sky | EnvironmentMap:
+    """The sky a state holds: an environment sky with its image read (relative to
+    ``scene_dir``), any other sky as it is."""
+    if not isinstance(sky, fmt.EnvironmentSky):
+        return sky
+    try:
+        path = resolve_reference(scene_dir, sky.file)
+    except SceneError as exc:
+        raise SceneError(f"sky: {exc}") from None
+    return EnvironmentMap(sky, read_environment_image(path, f"sky: {sky.file}"))
 
 
 def load_scene(path: str | Path) -> SceneState:
@@ -249,7 +262,7 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
         nodes=nodes,
         camera=camera,
         render=scene.render,
-        sky=scene.sky,
+        sky=load_sky(scene.sky, scene_dir),
         animation=animation,
         lights=tuple(scene.lights),
         textures=textures,

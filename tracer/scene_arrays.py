@@ -89,6 +89,13 @@ class SceneArrays(NamedTuple):
     """int32 (E,): rows of ``light_data`` of suns that rays can see (a radius > 0)."""
     sky: np.ndarray
     """float64 (``lights.SKY_SIZE``,): the sky (``tracer.lights``)."""
+    sky_image: np.ndarray
+    """float32 (H, W, 3): an environment map's radiance, scale applied
+    (``tracer.environment_light``; a placeholder unless the sky is one)."""
+    sky_rows: np.ndarray
+    """float64 (H + 1,): the map's marginal CDF over rows."""
+    sky_cols: np.ndarray
+    """float64 (H, W + 1): the map's conditional CDFs over each row's columns."""
 
     @property
     def nbytes(self) -> int:
@@ -149,4 +156,7 @@ def borrow_scene(s):
         borrowed(s.light_data),
         borrowed(s.light_env),
         borrowed(s.sky),
+        borrowed(s.sky_image),
+        borrowed(s.sky_rows),
+        borrowed(s.sky_cols),
     )

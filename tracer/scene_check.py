@@ -12,6 +12,7 @@ import numpy as np
 
 from tracer import config
 from tracer import scene_format as fmt
+from tracer.environment import EnvironmentMap, check_image
 from tracer.errors import SceneError
 from tracer.scene_model import NODE_KINDS, Animation, Mesh, Node, SceneState
 
@@ -30,8 +31,17 @@ def check_state(state: SceneState) -> None:
             raise SceneError(f"materials[{name!r}] is not a named material")
     if not isinstance(state.camera, fmt.Camera) or not isinstance(state.render, fmt.RenderSettings):
         raise SceneError("camera and render must be scene_format models")
-    if not isinstance(state.sky, fmt.ConstantSky | fmt.GradientSky):
-        raise SceneError(f"the sky must be a scene_format sky model, not {state.sky!r}")
+    if isinstance(state.sky, EnvironmentMap):
+        if not isinstance(state.sky.model, fmt.EnvironmentSky):
+            raise SceneError("an environment map's model must be a scene_format EnvironmentSky")
+        if not isinstance(state.sky.image, np.ndarray) or state.sky.image.dtype != np.float32:
+            raise SceneError("an environment map's image must be a float32 array")
+        check_image(state.sky.image, f"sky: {state.sky.model.file}")
+    elif not isinstance(state.sky, fmt.ConstantSky | fmt.GradientSky):
+        raise SceneError(
+            f"the sky must be a constant or gradient sky model or an environment map with its "
+            f"image, not {state.sky!r}"
+        )
     if not all(isinstance(light, fmt.PointLight | fmt.SpotLight | fmt.SunLight) for light in
                state.lights):  # fmt: skip
         raise SceneError("lights must be scene_format light models")

@@ -421,9 +421,32 @@ class GradientSky(Strict):
     ground: Radiance = (0.0, 0.0, 0.0)
 
 
+class EnvironmentSky(Strict):
+    """An equirectangular (latitude-longitude) HDR image of the radiance at infinity: +y is up,
+    the image's top row looks straight up and its bottom row straight down, ``u`` (left to
+    right) runs along the azimuth, and the image centre looks along -z (the default camera's
+    view); docs/scene-format.md. Light samples pick its bright pixels more often (importance
+    sampling by luminance)."""
+
+    type: Literal["environment"]
+    file: str = Field(
+        min_length=1,
+        description="An OpenEXR (.exr, R, G and B channels) or NumPy (.npy, float (H, W, 3)) "
+        "image of linear RGB radiance, relative to the scene file and inside its directory",
+    )
+    scale: NonNegative = Field(default=1.0, description="Factor on the image's radiance")
+    rotation: Finite = Field(
+        default=0.0,
+        description="Degrees about the up axis (+y), counter-clockwise seen from above (the "
+        "sense of an object's rotate about y)",
+    )
+
+
 Sky = Annotated[
-    Annotated[ConstantSky, Tag("constant")] | Annotated[GradientSky, Tag("gradient")],
-    _tag("constant", "gradient"),
+    Annotated[ConstantSky, Tag("constant")]
+    | Annotated[GradientSky, Tag("gradient")]
+    | Annotated[EnvironmentSky, Tag("environment")],
+    _tag("constant", "gradient", "environment"),
 ]
 
 

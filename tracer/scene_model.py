@@ -18,6 +18,7 @@ from typing import Literal
 import numpy as np
 
 from tracer import scene_format as fmt
+from tracer.environment import EnvironmentMap
 from tracer.errors import SceneError
 
 NodeKind = Literal["static", "rigid", "deformable", "dynamic"]
@@ -136,7 +137,8 @@ class SceneState:
     nodes: Mapping[int, Node]
     camera: fmt.Camera
     render: fmt.RenderSettings
-    sky: fmt.Sky = field(default_factory=fmt.ConstantSky)
+    sky: fmt.ConstantSky | fmt.GradientSky | EnvironmentMap = field(default_factory=fmt.ConstantSky)
+    """An environment sky is held with its pixels (``tracer.environment``)."""
     animation: Animation | None = None
     lights: tuple[fmt.Light, ...] = ()
     """Point, spot and sun lights, in world space (emitting surfaces are materials)."""

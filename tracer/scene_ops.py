@@ -205,8 +205,9 @@ class SetCamera(_Op):
 
 
 class SetSky(_Op):
-    """Set the sky: ``radiance`` for a constant sky (linear RGB; 0 = black), or any ``sky``
-    model of the scene format (one of the two)."""
+    """Set the sky: ``radiance`` for a constant sky (linear RGB; 0 = black), or a constant or
+    gradient ``sky`` model of the scene format (one of the two). An environment map comes only
+    with a scene file, which carries its image."""
 
     op: Literal["set_sky"] = "set_sky"
     radiance: fmt.Radiance | None = None
@@ -216,6 +217,11 @@ class SetSky(_Op):
     def _one(self) -> "SetSky":
         if (self.radiance is None) == (self.sky is None):
             raise ValueError("give either radiance or sky")
+        if isinstance(self.sky, fmt.EnvironmentSky):
+            raise ValueError(
+                "set_sky takes a constant or gradient sky; an environment map needs its image, "
+                "which only a scene file can bring"
+            )
         return self
 
     def _apply(self, draft: "_Draft") -> None:

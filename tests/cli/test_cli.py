@@ -334,6 +334,18 @@ BAD_INPUT = {
     "output is a directory": (["render", "{scene}", "-o", "{tmp}/dir.png"], ["directory"]),
     "output parent is a file": (["render", "{scene}", "-o", "{tmp}/bad.json/out.png", "-q"], []),
     "reference outside dir": (["render", "{tmp}/inner/escape.json", "-o", OUT], ["stolen.obj"]),
+    "environment map missing": (
+        ["render", "{tmp}/env-missing.json", "-o", OUT],
+        ["sky", "nope.exr", "no such file"],
+    ),
+    "environment map outside dir": (
+        ["render", "{tmp}/inner/env-escape.json", "-o", OUT],
+        ["sky", "may not leave"],
+    ),
+    "environment map bad shape": (
+        ["render", "{tmp}/env-shape.json", "-o", OUT],
+        ["sky", "(H, W, 3)"],
+    ),
     "no output option": (["render", "{scene}"], ["-o/--output"]),
     "unknown option": (["render", "{scene}", "-o", OUT, "--fast"], ["--fast"]),
     "unknown command": (["draw", "{scene}"], ["draw"]),
@@ -373,6 +385,11 @@ def bad_files(tmp_path):
     write_json(tmp_path / "inner" / "escape.json", data)
     (tmp_path / "dir.png").mkdir()
     write_json(tmp_path / "anim.json", animated_scene(frames=4))
+    np.save(tmp_path / "sky.npy", np.ones((4, 8, 3), np.float32))
+    np.save(tmp_path / "flat.npy", np.ones((4, 8), np.float32))
+    for name, file in [("env-missing.json", "nope.exr"), ("inner/env-escape.json", "../sky.npy"),
+                       ("env-shape.json", "flat.npy")]:  # fmt: skip
+        write_json(tmp_path / name, tiny_scene(sky={"type": "environment", "file": file}))
     return tmp_path
 
 

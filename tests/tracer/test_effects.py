@@ -182,6 +182,7 @@ EFFECT_SCENES = [
     ("many-lights", "glossy", ["steel", "teal-plastic"]),
     ("veach-mis", "glossy", ["plate-0", "plate-1", "plate-2", "plate-3"]),
     ("textured", "textures", ["floor-tiles", "poster.obj#poster", "crate.glb#crate"]),
+    ("environment", "sky", None),
 ]
 """Scene, effect, and the materials whose pixels show it (None: the whole image)."""
 EFFECT_SIZE = (96, 64)
