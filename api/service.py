@@ -770,9 +770,9 @@ class RenderService:
             except (OSError, SceneError, ValueError) as exc:
                 self._fail(job_id, f"the job cannot start: {exc}")
                 continue
-            self.store.update_job(
-                job_id, status="running", started=record["started"] or time.time()
-            )
+            if not self.store.start_job(job_id):  # cancelled since it was read
+                self._cancelled.discard(job_id)
+                continue
             self.events.publish(
                 job_id,
                 "status",

@@ -194,6 +194,18 @@ class Store:
         names = ", ".join(f"{k} = ?" for k in fields)
         self._run(f"UPDATE jobs SET {names} WHERE id = ?", (*fields.values(), job_id))
 
+    def start_job(self, job_id: str) -> bool:
+        """Mark a queued (or resuming) job running; False if it was finished meanwhile (e.g.
+        cancelled between the render thread's read of it and this update)."""
+        return (
+            self._run(
+                "UPDATE jobs SET status = 'running', started = COALESCE(started, ?) "
+                "WHERE id = ? AND status IN ('queued', 'running')",
+                (time.time(), job_id),
+            )
+            > 0
+        )
+
     def finish_job(self, job_id: str, status: str, error: str | None = None) -> bool:
         """Move an unfinished job to a terminal status; False if it already was terminal."""
         return (

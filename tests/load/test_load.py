@@ -76,11 +76,6 @@ def test_a_full_queue_answers_429_promptly(full_queue):
     assert full_queue["max_ms"] < 1000.0, full_queue
 
 
-@pytest.mark.xfail(
-    reason="api/service.py _start_next_job overwrites a cancel that lands between its read of "
-    "the job and its status update: the job stays 'running' for ever (reported to the lead)",
-    strict=False,
-)
 def test_jobs_cancelled_in_the_queue_end_cancelled(http, full_queue):
     """Cancelling the queue's jobs one after another while the render thread starts each next
     one: every job ends cancelled (the running one may finish its frame first)."""
