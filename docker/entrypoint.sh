@@ -4,7 +4,8 @@
 #   head            the Ray head (GCS); RAY_HEAD_CPUS logical CPUs (default 0: no tracer here)
 #   worker          a Ray worker node joining RAY_ADDRESS; RAY_WORKER_CPUS (default: all)
 #   api             a 0-CPU Ray node for the service's driver, then `tilerender serve` on
-#                   0.0.0.0:8000 joining RAY_ADDRESS, once API_WAIT_WORKERS nodes with CPUs are up
+#                   0.0.0.0:API_PORT (8000) joining RAY_ADDRESS, once API_WAIT_WORKERS nodes
+#                   with CPUs are up
 #   healthcheck R   exit 0 if role R is healthy here (for the compose healthchecks)
 #   anything else   run it (e.g. `tilerender render ...`, `bash`)
 #
@@ -13,12 +14,13 @@
 # RAY_DASHBOARD (head: true/false, default false), RAY_START_ARGS (more `ray start` flags, e.g.
 # fixed ports), RAY_OBJECT_STORE_MEMORY (bytes; default: 80% of /dev/shm when Ray's own default,
 # 30% of the memory, does not fit there), RAY_AUTH_MODE and RAY_AUTH_TOKEN (read by Ray: token
-# auth on every node), API_WAIT_WORKERS (default 1), API_WAIT_TIMEOUT (seconds, default 600),
-# TILERENDER_* (the service's settings, docs/api.md).
+# auth on every node), API_PORT (default 8000), API_WAIT_WORKERS (default 1), API_WAIT_TIMEOUT
+# (seconds, default 600), TILERENDER_* (the service's settings, docs/api.md).
 set -eu
 
 RAY_ADDRESS=${RAY_ADDRESS:-ray-head:6379}
 RAY_PORT=${RAY_PORT:-6379}
+API_PORT=${API_PORT:-8000}
 
 node_ip() {
     if [ -n "${RAY_NODE_IP:-}" ]; then echo "--node-ip-address=$RAY_NODE_IP"; fi
@@ -80,8 +82,9 @@ sys.exit(not any(name(p) == "raylet" for p in os.listdir("/proc") if p.isdigit()
             ;;
         api)
             python -c '
-import urllib.request
-urllib.request.urlopen("http://127.0.0.1:8000/readyz", timeout=5)' >/dev/null 2>&1
+import sys, urllib.request
+urllib.request.urlopen(f"http://127.0.0.1:{sys.argv[1]}/readyz", timeout=5)' "$API_PORT" \
+                >/dev/null 2>&1
             ;;
         *)
             echo "healthcheck: unknown role '$1'" >&2
@@ -112,13 +115,13 @@ case "$role" in
         ray start --address="$RAY_ADDRESS" --num-cpus=0 $(object_store) $(node_ip) \
             ${RAY_START_ARGS:-} >&2
         if [ "${API_WAIT_WORKERS:-1}" -gt 0 ]; then wait_for_workers; fi
-        exec tilerender serve --host 0.0.0.0 --port 8000 --ray-address "$RAY_ADDRESS" "$@"
+        exec tilerender serve --host 0.0.0.0 --port "$API_PORT" --ray-address "$RAY_ADDRESS" "$@"
         ;;
     healthcheck)
         healthy "${1:?usage: healthcheck head|worker|api}"
         ;;
     help | -h | --help)
-        sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'
+        sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'
         ;;
     *)
         exec "$role" "$@"
