@@ -115,7 +115,8 @@ if [ -z "${COMPOSE:-}" ]; then
         COMPOSE=$("$HERE/install-compose.sh" v1)
     fi
 fi
-VERSION=$($COMPOSE version 2>/dev/null | head -n 1) || fail "compose '$COMPOSE' does not run"
+VERSION=$($COMPOSE version 2>/dev/null) || fail "compose '$COMPOSE' does not run"
+VERSION=${VERSION%%$'\n'*}
 log "compose: $COMPOSE ($VERSION)"
 phase compose
 

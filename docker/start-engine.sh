@@ -145,10 +145,21 @@ stop() {
     say "stopping dockerd (pid $pid)"
     kill -TERM "$pid"
     for _ in $(seq 60); do
-        kill -0 "$pid" 2>/dev/null || { say "stopped"; return; }
+        if ! kill -0 "$pid" 2>/dev/null; then
+            unmount_leftovers
+            say "stopped"
+            return
+        fi
         sleep 0.5
     done
     die "dockerd (pid $pid) is still running after 30 s"
+}
+
+# dockerd leaves its default network namespace mounted under the exec root; unmount whatever is
+# still mounted under ENGINE_DIR, so that the directory can be deleted.
+unmount_leftovers() {
+    awk -v dir="$ENGINE_DIR/" 'index($2, dir) == 1 {print $2}' /proc/mounts | sort -r |
+        while read -r mountpoint; do umount "$mountpoint" 2>/dev/null || true; done
 }
 
 status() {
