@@ -480,7 +480,7 @@ def study_scene(
     width, height = study_size(scene.camera.width, scene.camera.height, options.pixels)
     camera = fmt.override(scene.camera, width=width, height=height)
     base = fmt.override(scene.render, seed=options.seed)
-    ref = independent_reference(path.parent, width, height, base)
+    ref, note = independent_reference(path.parent, width, height, base)
     configs = configurations(base)
     on_start(name, planned_spp(options, len(configs), ref is None))
     if ref is None:
@@ -514,6 +514,7 @@ def study_scene(
             "max_depth": ref.settings.max_depth,
             "seconds": ref.seconds,
             "noise_floor": floor,
+            "note": note,
         },
         "configs": configs_result,
         "effects": costs,

@@ -1,10 +1,11 @@
 """The one reference image per scene that the accuracy study measures every render against.
 
 An independent renderer's reference is preferred: ``mitsuba_mean.npy`` with
-``mitsuba_var_of_mean.npy`` (or the Cornell box's ``reference_mean.npy`` and
-``reference_var_of_mean.npy``) in the scene's folder, when its resolution is the study's or an
-integer multiple of it (``k x k`` blocks of a box-filtered image average to the box-filtered
-image of the larger pixel). It was rendered with the scene's own render settings.
+``mitsuba_var_of_mean.npy`` and ``mitsuba.json`` (or the Cornell box's ``reference_mean.npy``
+and ``reference_var_of_mean.npy``) in the scene's folder, when its resolution is the study's or
+an integer multiple of it (``k x k`` blocks of a box-filtered image average to the box-filtered
+image of the larger pixel), and when Mitsuba's material models are ours for that scene. It was
+rendered with the scene's own render settings.
 
 Otherwise the reference is our own path tracer with every effect, ``max_depth``
 ``REFERENCE_DEPTH`` and a seed no sweep uses, in ``passes`` independent passes over disjoint
@@ -56,31 +57,57 @@ class Reference:
 
 def independent_reference(
     folder: Path, width: int, height: int, settings: fmt.RenderSettings
-) -> Reference | None:
-    """An independent renderer's reference in ``folder`` at (a multiple of) ``width x height``."""
+) -> tuple[Reference | None, str]:
+    """An independent renderer's reference in ``folder`` at (a multiple of) ``width x height``,
+    the least noisy one when there are several; ``(None, why)`` when there is none to use.
+
+    A Mitsuba reference whose ``mitsuba.json`` lists a ``model`` deviation (a material model
+    that differs from ours, docs/mitsuba.md) is not used: every configuration would show that
+    difference as error. Its ``max_depth`` and ``rr_depth`` are the settings it was made with.
+    """
+    found, notes = [], []
     for mean_name, var_name in INDEPENDENT_FILES:
         mean_path, var_path = folder / mean_name, folder / var_name
         if not (mean_path.is_file() and var_path.is_file()):
             continue
+        record = _mitsuba_record(folder) if mean_name.startswith("mitsuba") else {}
+        models = [d["feature"] for d in record.get("deviations", []) if d.get("kind") == "model"]
+        if models:
+            notes.append(f"{mean_name} not used: its material models differ ({', '.join(models)})")
+            continue
         mean = np.load(mean_path).astype(np.float64)
         var = np.load(var_path).astype(np.float64)
         if mean.ndim != 3 or mean.shape != var.shape or mean.shape[2] != 3:
+            notes.append(f"{mean_name} not used: shape {mean.shape}")
             continue
         k = mean.shape[1] // width
         if k < 1 or mean.shape[0] != k * height or mean.shape[1] != k * width:
+            notes.append(f"{mean_name} not used: {mean.shape[1]}x{mean.shape[0]} pixels")
             continue
-        return Reference(
-            block_mean(mean, k),
-            block_mean(var, k) / (k * k),
-            "mitsuba",
-            settings,
-            0,
-            0.0,
-            f"{mean_path.name} ({mean.shape[1]}x{mean.shape[0]}"
-            + (f", {k}x{k} blocks averaged" if k > 1 else "")
-            + ")",
+        used = fmt.override(
+            settings, max_depth=record.get("max_depth"), rr_depth=record.get("rr_depth")
         )
-    return None
+        spp = record.get("passes", 0) * record.get("spp_per_pass", 0) or None
+        detail = (
+            f"{mean_name} ({record.get('renderer', 'Mitsuba 3')}, {mean.shape[1]}x{mean.shape[0]}"
+            + (f", {spp} spp" if spp else "")
+            + (f", {k}x{k} blocks averaged" if k > 1 else "")
+            + ")"
+        )
+        var = block_mean(var, k) / (k * k)
+        found.append(Reference(block_mean(mean, k), var, "mitsuba", used, spp or 0, 0.0, detail))
+    if not found:
+        return None, "; ".join(notes)
+    return min(found, key=lambda ref: float(ref.var_of_mean.mean())), "; ".join(notes)
+
+
+def _mitsuba_record(folder: Path) -> dict:
+    """``mitsuba.json`` beside a Mitsuba reference (how it was made), or {}."""
+    path = folder / "mitsuba.json"
+    try:
+        return json.loads(path.read_text()) if path.is_file() else {}
+    except (OSError, ValueError):
+        return {}
 
 
 def block_mean(image: np.ndarray, k: int) -> np.ndarray:

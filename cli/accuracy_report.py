@@ -378,7 +378,8 @@ def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
         "",
         f"{width}x{height} pixels, {scene['triangles']} triangles. Reference: {ref['detail']}, "
         f"max_depth {ref['max_depth']}; its noise floor (relative MSE it adds, subtracted "
-        f"from every relative MSE below) is {ref['noise_floor']:.2e}.",
+        f"from every relative MSE below) is {ref['noise_floor']:.2e}."
+        + (f" ({ref['note']}.)" if ref.get("note") else ""),
         "",
         f"![{name}: error against time]({image_dir}/error-vs-time-{name}.png)",
         "",

@@ -203,14 +203,36 @@ def test_independent_reference_sizes(tmp_path):
     np.save(tmp_path / "mitsuba_mean.npy", mean)
     np.save(tmp_path / "mitsuba_var_of_mean.npy", var)
     settings = fmt.RenderSettings()
-    same = independent_reference(tmp_path, 12, 8, settings)
+    same, _ = independent_reference(tmp_path, 12, 8, settings)
     assert np.array_equal(same.mean, mean) and np.array_equal(same.var_of_mean, var)
-    half = independent_reference(tmp_path, 6, 4, settings)
+    half, _ = independent_reference(tmp_path, 6, 4, settings)
     assert np.allclose(half.mean[1, 2], mean[2:4, 4:6].mean(axis=(0, 1)))
     assert np.allclose(half.var_of_mean[1, 2], var[2:4, 4:6].sum(axis=(0, 1)) / 16)
     assert np.array_equal(block_mean(mean, 2), half.mean)
-    assert independent_reference(tmp_path, 5, 4, settings) is None  # not a whole factor
-    assert independent_reference(tmp_path, 6, 3, settings) is None  # another aspect
+    none, why = independent_reference(tmp_path, 5, 4, settings)  # not a whole factor
+    assert none is None and "12x8 pixels" in why
+    assert independent_reference(tmp_path, 6, 3, settings)[0] is None  # another aspect
+
+
+def test_independent_reference_choice(tmp_path):
+    """The least noisy of the files that fit; Mitsuba's own settings; none whose material
+    models differ from ours."""
+    rng = np.random.default_rng(1)
+    for name, scale in (("mitsuba", 1.0), ("reference", 0.01)):
+        np.save(tmp_path / f"{name}_mean.npy", rng.uniform(size=(4, 4, 3)))
+        np.save(tmp_path / f"{name}_var_of_mean.npy", scale * rng.uniform(size=(4, 4, 3)))
+    record = {"max_depth": 5, "rr_depth": 3, "passes": 4, "spp_per_pass": 8, "deviations": []}
+    (tmp_path / "mitsuba.json").write_text(json.dumps(record))
+    chosen, _ = independent_reference(tmp_path, 4, 4, fmt.RenderSettings())
+    assert chosen.detail.startswith("reference_mean.npy")
+    (tmp_path / "reference_mean.npy").unlink()
+    chosen, _ = independent_reference(tmp_path, 4, 4, fmt.RenderSettings())
+    assert chosen.settings.max_depth == 5 and chosen.settings.rr_depth == 3
+    assert chosen.spp == 32 and "32 spp" in chosen.detail
+    record["deviations"] = [{"feature": "rough plastic 'red'", "kind": "model"}]
+    (tmp_path / "mitsuba.json").write_text(json.dumps(record))
+    chosen, why = independent_reference(tmp_path, 4, 4, fmt.RenderSettings())
+    assert chosen is None and "rough plastic 'red'" in why
 
 
 def test_own_reference_is_cached(tmp_path):
