@@ -48,6 +48,7 @@ from tracer.error_estimate import (
 )
 from tracer.loader import load_scene
 from tracer.render import render_image
+from tracer.threads import default_threads
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO_ROOT / "bench" / "results" / "accuracy-cache"
@@ -71,9 +72,9 @@ class StudyOptions:
     reference_factor: int = 16
     """Our own references take ``reference_factor x max_spp`` samples per pixel."""
     reference_passes: int = 16
-    effect_spp: int = 16
+    effect_spp: int = 32
     """Samples per pixel of one timed render of the effect-cost table."""
-    repeats: int = 5
+    repeats: int = 7
     """Rounds of the effect-cost table (the median is reported)."""
     seed: int = 0
     threads: int | None = None
@@ -249,6 +250,23 @@ def law_slope(levels: list[dict]) -> float | None:
     return float(np.polyfit(x, y, 1)[0])
 
 
+class RenderClock:
+    """Render time that a busy shared machine does not inflate: the process's CPU seconds
+    (every render thread's) divided by the thread count, which is the wall-clock time of the
+    same render on an idle machine with balanced threads. Wall-clock seconds are kept too."""
+
+    def __init__(self, threads: int) -> None:
+        self.threads = threads
+
+    def __enter__(self) -> "RenderClock":
+        self._cpu, self._wall = time.process_time(), time.perf_counter()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.seconds = (time.process_time() - self._cpu) / self.threads
+        self.wall_seconds = time.perf_counter() - self._wall
+
+
 # --- the parts of a scene's study --------------------------------------------------------------
 
 
@@ -262,6 +280,7 @@ class _Run:
     total: np.ndarray
     spp: int = 0
     seconds: float = 0.0
+    wall_seconds: float = 0.0
     work: int = 0
     levels: list = field(default_factory=list)
 
@@ -277,6 +296,7 @@ def sweep(
 ) -> tuple[dict, dict[int, np.ndarray]]:
     """Run every configuration through the spp levels, interleaved wave by wave; returns the
     per-configuration records and the default configuration's images at ``STRIP_SPP``."""
+    threads = options.threads or default_threads()
     runs = []
     for config in configurations(base):
         settings = config.settings(base)
@@ -289,22 +309,28 @@ def sweep(
     for index, level in enumerate(levels):
         for run in runs:
             n = level - run.spp
-            start = time.perf_counter()
-            rgb, cost = render_image(
-                scene,
-                camera,
-                fmt.override(run.settings, spp=n),
-                sample_start=run.spp,
-                threads=options.threads,
-                plan=run.plan,
-            )
-            run.seconds += time.perf_counter() - start
+            with RenderClock(threads) as clock:
+                rgb, cost = render_image(
+                    scene,
+                    camera,
+                    fmt.override(run.settings, spp=n),
+                    sample_start=run.spp,
+                    threads=threads,
+                    plan=run.plan,
+                )
+            run.seconds += clock.seconds
+            run.wall_seconds += clock.wall_seconds
             run.total += rgb.astype(np.float64) * n
             run.spp = level
             run.work += int(cost.sum())
             image = run.total / level
             flip = index % options.flip_every == 0 or index == len(levels) - 1
-            record = {"spp": level, "seconds": run.seconds, "work": run.work}
+            record = {
+                "spp": level,
+                "seconds": run.seconds,
+                "wall_seconds": run.wall_seconds,
+                "work": run.work,
+            }
             run.levels.append(record | measure(image, ref, floor, flip))
             if run.config.name == DEFAULT_CONFIG and level in STRIP_SPP:
                 strips[level] = image.astype(np.float32)
@@ -327,26 +353,28 @@ def sweep(
 
 
 EFFECT_STAGES = (
-    ("diffuse", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS | effects.INDIRECT),
-    ("diffuse + shadows", "whitted", effects.MATERIAL_EFFECTS | effects.INDIRECT),
-    ("diffuse + reflection, refraction", "whitted", effects.SHADOWS | effects.INDIRECT),
-    ("diffuse + shadows + indirect", "path", effects.MATERIAL_EFFECTS),
+    ("diffuse", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS),
+    ("diffuse + shadows", "whitted", effects.MATERIAL_EFFECTS),
+    ("diffuse + reflection, refraction", "whitted", effects.SHADOWS),
+    ("diffuse + shadows + reflection, refraction", "whitted", 0),
     ("all effects", "path", 0),
 )
-"""Reiter's eq. 5.1 stages: (name, integrator, effects dropped from the scene's plan). Without
-material effects every surface is Lambertian. Indirect light is measured on top of shadows,
-since every indirect path vertex also shoots a shadow ray."""
+"""Reiter's eq. 5.1 stages: (name, integrator, effects dropped from the plan the integrator
+gets). The ``whitted`` stages are Reiter's own ray tracer (direct light, recursion through
+mirrors and glass); without material effects every surface is Lambertian. ``all effects`` is
+the path tracer, so the indirect part is what path tracing adds to Whitted's with every
+effect."""
 
 
 def effect_parts(median: dict[str, float]) -> dict[str, float]:
-    """Reiter's eq. 5.1 from the stages' median seconds: each part is the time an effect adds
-    to the stage below it."""
+    """Reiter's eq. 5.1 from the stages' median seconds: shadows and reflection/refraction
+    each added to diffuse alone, and indirect light added to Whitted with every effect."""
     d = median["diffuse"]
     return {
         "diffuse": d,
         "shadows": median["diffuse + shadows"] - d,
         "reflection, refraction": median["diffuse + reflection, refraction"] - d,
-        "indirect": median["diffuse + shadows + indirect"] - median["diffuse + shadows"],
+        "indirect": median["all effects"] - median["diffuse + shadows + reflection, refraction"],
     }
 
 
@@ -360,28 +388,30 @@ def effect_costs(
     on_samples: Callable[[int], None],
 ) -> dict:
     """Time the stages side by side (``repeats`` interleaved rounds of ``effect_spp`` samples,
-    after one untimed warm-up each), split the time into parts by eq. 5.1 and compare their
-    sum with the measured time of all effects. Each stage's image (all rounds' samples) is
-    also measured against the reference: what an effect adds to accuracy."""
+    after one untimed warm-up each; :class:`RenderClock` seconds), split the time into parts by
+    eq. 5.1 and compare their sum with the measured time of all effects. Each stage's image
+    (all rounds' samples) is also measured against the reference: what an effect adds to
+    accuracy."""
+    threads = options.threads or default_threads()
     stages = []
     for name, integrator, drop in EFFECT_STAGES:
         settings = fmt.override(base, integrator=integrator, spp=options.effect_spp)
         plan = Config(name, name, drop=drop).plan(scene, settings)
         tiny = fmt.override(camera, width=1, height=1)
-        render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=options.threads)
+        render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=threads)
         stages.append((name, settings, plan, np.zeros((camera.height, camera.width, 3)), []))
     for round_index in range(options.repeats):
         for _, settings, plan, total, seconds in stages:
-            start = time.perf_counter()
-            rgb, _ = render_image(
-                scene,
-                camera,
-                settings,
-                sample_start=round_index * options.effect_spp,
-                threads=options.threads,
-                plan=plan,
-            )
-            seconds.append(time.perf_counter() - start)
+            with RenderClock(threads) as clock:
+                rgb, _ = render_image(
+                    scene,
+                    camera,
+                    settings,
+                    sample_start=round_index * options.effect_spp,
+                    threads=threads,
+                    plan=plan,
+                )
+            seconds.append(clock.seconds)
             total += rgb
             on_samples(options.effect_spp)
     median = {name: float(np.median(seconds)) for name, _, _, _, seconds in stages}

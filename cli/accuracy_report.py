@@ -131,7 +131,7 @@ def error_vs_time_plot(name: str, scene: dict, path: Path) -> Path:
         ax.axhline(math.sqrt(target), color="grey", linestyle=":", linewidth=1)
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("seconds (render time, cumulative)")
+    ax.set_xlabel("render seconds (CPU seconds / threads, cumulative)")
     ax.set_ylabel("relative error (sqrt of relative MSE)")
     width, height = scene["size"]
     ax.set_title(f"{name} ({width}x{height}): error against time, 1 to "
@@ -285,13 +285,14 @@ def markdown(results: dict, image_dir: str, command: str) -> str:
         f"{results['seconds'] / 60:.0f} minutes: about {options['pixels']} pixels per image, "
         f"1 to {options['max_spp']} spp, seed {options['seed']}. Machine: {machine['cpus']} "
         f"CPUs, load average {machine['load_average'][0]:.1f} at the start and "
-        f"{machine['load_average_end'][0]:.1f} at the end (a shared machine: times within one "
-        "scene were measured side by side, wave by wave; compare ratios, not absolute "
-        "seconds).",
+        f"{machine['load_average_end'][0]:.1f} at the end. Seconds are render seconds: the "
+        "process's CPU seconds over its render threads, the wall-clock time of the render on "
+        "an idle machine (on this shared one, wall-clock time measured the neighbours too; "
+        "it is kept in the JSON as `wall_seconds`). Configurations took turns wave by wave.",
         "",
         "### Time to quality, every scene",
         "",
-        "Seconds of render time for the default configuration (`path`, the scene's own "
+        "Render seconds for the default configuration (`path`, the scene's own "
         "settings) to reach a relative MSE of 1e-2, 1e-3 and 1e-4 (relative errors of 10%, "
         "3.2% and 1%), and the configuration that reaches 1% error soonest. *Extrapolated*: "
         "past the sweep's last level along the 1/N law (the last three levels follow it).",
@@ -354,7 +355,7 @@ def calibration_section(results: dict, image_dir: str) -> list[str]:
 
 def effect_summary(results: dict) -> list[str]:
     lines = [
-        "| scene | diffuse | + shadows | + reflection, refraction | + indirect | sum of parts "
+        "| scene | diffuse | shadows | reflection, refraction | indirect | sum of parts "
         "| all effects (measured) | sum / measured |",
         "|---|---|---|---|---|---|---|---|",
     ]

@@ -295,10 +295,10 @@ def add_bench_parser(sub) -> None:
         help="our own references take this many times --max-spp (default 16)",
     )
     accuracy.add_argument(
-        "--repeats", type=positive_int, help="rounds of the effect-cost timings (default 5)"
+        "--repeats", type=positive_int, help="rounds of the effect-cost timings (default 7)"
     )
     accuracy.add_argument(
-        "--effect-spp", type=positive_int, help="spp of one effect-cost render (default 16)"
+        "--effect-spp", type=positive_int, help="spp of one effect-cost render (default 32)"
     )
     accuracy.add_argument("--seed", type=non_negative_int, default=0, help="(default 0)")
     accuracy.add_argument("--threads", type=positive_int, help="render threads (default: all)")
