@@ -430,8 +430,9 @@ class _Writer:
                 f"rough conductor {name!r}",
                 "model",
                 "Mitsuba's Smith masking-shadowing is the separable G1(wo) G1(wi), ours the "
-                "height-correlated form: the same below roughness 0.15, up to 0.6% darker at "
-                "roughness 0.26 and 4% at 0.45 at grazing angles (docs/mitsuba.md)",
+                "height-correlated form: within 0.03% below roughness 0.15; at 85 degrees from "
+                "the normal Mitsuba's albedo is 0.8% lower at roughness 0.26, 4% at 0.45 "
+                "(docs/mitsuba.md)",
             )
         _rgb(bsdf, "eta", param[ETA : ETA + 3])
         _rgb(bsdf, "k", param[K : K + 3])
@@ -459,9 +460,9 @@ class _Writer:
                 f"rough plastic {name!r}",
                 "model",
                 "Mitsuba's roughplastic takes the base's transmittance and internal reflectance "
-                "from the rough coat (tabulated) and uses separable masking; ours uses the "
-                "smooth interface's: its base is 2% darker at roughness 0.1, 5-8% at 0.3 "
-                "(docs/mitsuba.md)",
+                "from tables of the rough coat and uses separable masking; ours uses the "
+                "smooth interface's: seen from the normal, its base is 2% darker at roughness "
+                "0.05-0.1, 4% at 0.2, 8% at 0.3 (docs/mitsuba.md)",
             )
         _float(bsdf, "int_ior", m.ior)
         _float(bsdf, "ext_ior", 1.0)

@@ -1,0 +1,197 @@
+"""How far Mitsuba 3's rough conductor and plastic models are from ours: directional albedos.
+
+For a view direction at angle theta_o from the normal, the directional albedo is the integral of
+``f cos`` over the hemisphere. Both models are integrated with the same samples (common random
+numbers), drawn from our own sampler, so the ratio Mitsuba / ours is precise even where the
+albedo itself is noisy:
+
+- rough conductor: ours (GGX, height-correlated Smith masking) against Mitsuba's
+  ``roughconductor`` (GGX, separable masking), same alpha and complex index;
+- plastic base (the diffuse part under the coat, where the models differ): ours
+  ``R / (1 - Fdr) (1 - F(cos_i)) (1 - F(cos_o)) / (pi eta^2)`` (docs/materials.md) against the
+  diffuse component of Mitsuba's ``plastic`` (roughness 0) or ``roughplastic``.
+
+Writes ``bench/results/mitsuba_models.json``. Needs Mitsuba (``scalar_rgb``, no libLLVM).
+"""
+
+import argparse
+import math
+import sys
+
+import numpy as np
+from common import console, machine_info, package_version, print_machine, print_table, write_results
+
+ROUGHNESS = (0.06, 0.14, 0.2, 0.26, 0.35, 0.45)
+PLASTIC_ROUGHNESS = (0.0, 0.05, 0.1, 0.2, 0.3, 0.5)
+ANGLES = (0.0, 45.0, 70.0, 80.0, 85.0)
+METAL = (0.75, 0.75, 0.78)
+"""The colour of the veach-mis plates."""
+BASE = 0.5
+PLASTIC_IOR = 1.5
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description="Directional albedo ratios Mitsuba / tilerender of the rough conductor and "
+        "the plastic base.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--samples", type=int, default=20000, help="directions per estimate")
+    parser.add_argument("--seed", type=int, default=1, help="random seed")
+    args = parser.parse_args(argv)
+    if args.samples < 100:
+        parser.error("--samples must be at least 100")
+    return args
+
+
+def local_view(theta_deg: float) -> tuple[float, float, float]:
+    theta = math.radians(theta_deg)
+    return (math.sin(theta), 0.0, math.cos(theta))
+
+
+def mitsuba_eval(mi, bsdf, wo, wi, component: int | None = None) -> float:
+    """Mitsuba's ``f cos`` (first channel) for camera-side ``wo`` and light-side ``wi``."""
+    si = mi.SurfaceInteraction3f()
+    si.wi = mi.Vector3f(*wo)
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+    ctx = mi.BSDFContext()
+    if component is not None:
+        ctx.component = component
+    return float(bsdf.eval(ctx, si, mi.Vector3f(*wi))[0])
+
+
+def conductor_rows(mi, rng, samples: int) -> list[dict]:
+    """Albedo of our rough conductor and Mitsuba's / ours, per roughness and view angle."""
+    from tracer import bsdf as ours
+    from tracer import scene_format as fmt
+    from tracer.materials import material_row
+
+    rows = []
+    for roughness in ROUGHNESS:
+        material = fmt.ConductorMaterial(type="conductor", reflectance=METAL, roughness=roughness)
+        kind, albedo, _, _, param = material_row(material)
+        albedo = tuple(float(c) for c in albedo)
+        theirs = mi.load_dict(
+            {
+                "type": "roughconductor",
+                "distribution": "ggx",
+                "alpha": float(param[ours.ALPHA]),
+                "eta": {"type": "rgb", "value": list(param[ours.ETA : ours.ETA + 3])},
+                "k": {"type": "rgb", "value": list(param[ours.K : ours.K + 3])},
+            }
+        )
+        for angle in ANGLES:
+            wo = local_view(angle)
+            u = rng.random((samples, 3))
+            mine = other = 0.0
+            for u0, u1, u2 in u:
+                wi, weight, pdf, _ = ours.bsdf_sample(
+                    kind, tuple(albedo), param, (0.0, 0.0, 1.0), wo, True, True, u0, u1, u2
+                )
+                if pdf <= 0.0:
+                    continue
+                mine += weight[0]
+                other += mitsuba_eval(mi, theirs, wo, wi) / pdf
+            rows.append(
+                {
+                    "roughness": roughness,
+                    "theta_o": angle,
+                    "albedo_ours": mine / samples,
+                    "ratio": other / mine,
+                }
+            )
+    return rows
+
+
+def plastic_rows(mi, rng, samples: int) -> list[dict]:
+    """Albedo of our plastic's base and Mitsuba's / ours, per roughness and view angle."""
+    from tracer.fresnel import fr_dielectric
+    from tracer.materials import fresnel_diffuse_reflectance
+
+    fdr = fresnel_diffuse_reflectance(1.0 / PLASTIC_IOR)
+    fresnel = fr_dielectric.py_func
+    rows = []
+    for roughness in PLASTIC_ROUGHNESS:
+        spec = {
+            "int_ior": PLASTIC_IOR,
+            "ext_ior": 1.0,
+            "diffuse_reflectance": {"type": "rgb", "value": [BASE] * 3},
+        }
+        if roughness == 0.0:
+            theirs = mi.load_dict({"type": "plastic", **spec})
+        else:
+            alpha = roughness * roughness
+            theirs = mi.load_dict(
+                {"type": "roughplastic", "distribution": "ggx", "alpha": alpha, **spec}
+            )
+        for angle in ANGLES:
+            wo = local_view(angle)
+            u = rng.random((samples, 2))
+            mine = other = 0.0
+            for u1, u2 in u:  # cosine-weighted directions: f cos / pdf = pi f
+                r, phi = math.sqrt(u1), 2.0 * math.pi * u2
+                wi = (r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1)))
+                pdf = wi[2] / math.pi
+                f = BASE / (1.0 - fdr) / (math.pi * PLASTIC_IOR**2)
+                f *= (1.0 - fresnel(wo[2], PLASTIC_IOR)) * (1.0 - fresnel(wi[2], PLASTIC_IOR))
+                mine += math.pi * f
+                other += mitsuba_eval(mi, theirs, wo, wi, component=1) / pdf
+            rows.append(
+                {
+                    "roughness": roughness,
+                    "theta_o": angle,
+                    "albedo_ours": mine / samples,
+                    "ratio": other / mine,
+                }
+            )
+    return rows
+
+
+def table(title: str, rows: list[dict], caption: str) -> None:
+    by_roughness: dict[float, dict[float, dict]] = {}
+    for row in rows:
+        by_roughness.setdefault(row["roughness"], {})[row["theta_o"]] = row
+    print_table(
+        title,
+        ["roughness", *(f"{a:g} deg" for a in ANGLES)],
+        [
+            [f"{r:g}", *(f"{v[a]['ratio']:.4f} ({v[a]['albedo_ours']:.3f})" for a in ANGLES)]
+            for r, v in by_roughness.items()
+        ],
+        caption=caption,
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    machine = machine_info()
+    print_machine(machine)
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    rng = np.random.default_rng(args.seed)
+    with console.status("rough conductor"):
+        conductor = conductor_rows(mi, rng, args.samples)
+    with console.status("plastic base"):
+        plastic = plastic_rows(mi, rng, args.samples)
+    table(
+        f"Rough conductor (colour {METAL}): albedo ratio Mitsuba / ours (our albedo)",
+        conductor,
+        "view angle theta_o from the normal; roughness is ours (alpha = roughness^2)",
+    )
+    table(
+        f"Plastic base (R = {BASE}, ior {PLASTIC_IOR}): ratio Mitsuba / ours (our albedo)",
+        plastic,
+        "roughness 0: Mitsuba's plastic; otherwise roughplastic with alpha = roughness^2",
+    )
+    machine["mitsuba"] = package_version("mitsuba")
+    write_results(
+        "mitsuba_models",
+        {"options": vars(args), "conductor": conductor, "plastic": plastic},
+        machine,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
