@@ -21,7 +21,7 @@ import sys
 import numpy as np
 from common import console, machine_info, package_version, print_machine, print_table, write_results
 
-ROUGHNESS = (0.06, 0.14, 0.2, 0.26, 0.35, 0.45)
+ROUGHNESS = (0.06, 0.14, 0.2, 0.26, 0.35, 0.45, 0.7, 1.0)
 PLASTIC_ROUGHNESS = (0.0, 0.05, 0.1, 0.2, 0.3, 0.5)
 ANGLES = (0.0, 45.0, 70.0, 80.0, 85.0)
 METAL = (0.75, 0.75, 0.78)
