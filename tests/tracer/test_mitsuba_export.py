@@ -438,6 +438,19 @@ def test_an_unknown_sky_kind_raises_naming_it(tmp_path):
         export_scene(state, tmp_path)
 
 
+@pytest.mark.parametrize(
+    "relative, feature",
+    [
+        ("environment/scene.json", "sky of type 'environment'"),
+        ("textured/scene.json", ": texture"),
+    ],
+)
+def test_environment_maps_and_textures_are_not_exported_yet(tmp_path, relative, feature):
+    with pytest.raises(UnsupportedFeature) as error:
+        export_scene(load_scene(ROOT / "scenes" / relative), tmp_path)
+    assert error.value.feature.endswith(feature), error.value.feature
+
+
 def test_winding_numbers_tell_inside_from_outside():
     vertices, faces = sphere(1.0, 2)
     w = mx.winding_numbers(np.array([[0, 0, 0], [0.5, 0.2, 0], [2, 0, 0]]), vertices, faces)
