@@ -54,6 +54,7 @@ from api.store import TERMINAL, Store
 from cluster.scene_graph import SceneGraph
 from tracer import scene_format as fmt
 from tracer.commit_codec import decode_state, encode_state
+from tracer.error_estimate import estimate_rel_error
 from tracer.errors import SceneError
 from tracer.image_io import linear_to_srgb8, write_image
 from tracer.scene_model import SceneState
@@ -64,7 +65,6 @@ SESSION_RENDER_GRACE = 10.0
 """Seconds a session keeps rendering after its last request when no stream is open."""
 MAX_WAVE_SPP = 64
 """Most samples per pixel in one half-wave of a progressive job frame."""
-ERROR_FLOOR = 1e-2
 """Luminance added to the denominator of the relative error (dark pixels do not dominate)."""
 
 
@@ -243,7 +243,7 @@ class JobRun:
         p.wave += 1
         if first_half:
             return None
-        p.error = relative_error(p.sum_a / p.spp_a, p.sum_b / p.spp_b)
+        p.error = estimate_rel_error(p.sum_a / p.spp_a, p.sum_b / p.spp_b)
         elapsed = time.monotonic() - p.started
         stop = self.max_spp - p.spp < 2
         if self.mode == "target_error":
@@ -308,15 +308,6 @@ class JobRun:
             "eta_seconds": None if eta is None else round(eta, 3),
             "elapsed_seconds": round(elapsed, 3),
         }
-
-
-def relative_error(a: np.ndarray, b: np.ndarray) -> float:
-    """Relative RMS error of the mean of two independent half images (luminance)."""
-    weights = np.array([0.2126, 0.7152, 0.0722])
-    la, lb = a @ weights, b @ weights
-    mean = 0.5 * (la + lb)
-    rel = 0.5 * np.abs(la - lb) / (mean + ERROR_FLOOR)
-    return float(np.sqrt(np.mean(rel * rel)))
 
 
 # --- Sessions ----------------------------------------------------------------------------------
