@@ -57,9 +57,8 @@ TARGETS = (1e-2, 1e-3, 1e-4)
 STRIP_SPP = (1, 4, 16, 64, 256)
 """Sample counts of the default configuration shown beside the reference in image strips."""
 DEFAULT_CONFIG = "path"
-LAW_SLOPE = (-1.25, -0.75)
-"""Slopes of log relative MSE against log spp that count as following the 1/N law (the error
-as 1/sqrt(N)) when a target lies beyond the sweep and is extrapolated."""
+FIT_LEVELS = 4
+"""Levels at the end of a sweep that fit ``bias + variance / N`` for extrapolation."""
 
 
 @dataclass(frozen=True)
@@ -210,44 +209,60 @@ def flip_error(shown: np.ndarray, shown_ref: np.ndarray) -> float:
 def time_to(levels: list[dict], target: float) -> dict:
     """Seconds and samples per pixel at which ``levels`` (a sweep's records, in order) first
     reach a relative MSE of ``target``: interpolated in log-log between the levels around it
-    (``how``: ``measured``); past the last level, extrapolated along the 1/N law when the last
-    three levels follow it (``extrapolated``: the samples the law needs, at the last level's
-    seconds per sample); else ``not reached`` (seconds None)."""
+    (``how``: ``measured``). Past the last level, the error is modelled as
+    ``bias + variance / N`` (:func:`bias_variance`): if ``target`` lies above the bias, the
+    samples the model needs, at the last level's seconds per sample (``extrapolated``); else
+    ``not reached``. ``floor`` is the fitted bias (None when the target was measured)."""
     previous = None
     for level in levels:
         if level["rel_mse"] <= target:
             if previous is None or previous["rel_mse"] <= 0.0 or level["rel_mse"] <= 0.0:
-                return {"seconds": level["seconds"], "spp": level["spp"], "how": "measured"}
+                return _reached(level["seconds"], level["spp"], "measured")
             f = math.log(previous["rel_mse"] / target) / math.log(
                 previous["rel_mse"] / level["rel_mse"]
             )
-            return {
-                "seconds": previous["seconds"] * (level["seconds"] / previous["seconds"]) ** f,
-                "spp": previous["spp"] * (level["spp"] / previous["spp"]) ** f,
-                "how": "measured",
-            }
+            return _reached(
+                previous["seconds"] * (level["seconds"] / previous["seconds"]) ** f,
+                previous["spp"] * (level["spp"] / previous["spp"]) ** f,
+                "measured",
+            )
         previous = level
-    slope = law_slope(levels[-3:])
-    if slope is not None and LAW_SLOPE[0] <= slope <= LAW_SLOPE[1]:
-        last = levels[-1]
-        factor = last["rel_mse"] / target
-        return {
-            "seconds": last["seconds"] * factor,
-            "spp": last["spp"] * factor,
-            "how": "extrapolated",
-        }
-    return {"seconds": None, "spp": None, "how": "not reached"}
+    last = levels[-1]
+    floor, _ = bias_variance(levels[-FIT_LEVELS:])
+    if target <= floor:
+        return {"seconds": None, "spp": None, "how": "not reached", "floor": floor}
+    factor = (last["rel_mse"] - floor) / (target - floor)
+    return {
+        "seconds": last["seconds"] * factor,
+        "spp": last["spp"] * factor,
+        "how": "extrapolated",
+        "floor": floor,
+    }
 
 
-def law_slope(levels: list[dict]) -> float | None:
-    """Least-squares slope of log relative MSE against log spp (None if undefined); -1 is
-    the Monte Carlo law (error as 1/sqrt(N))."""
-    points = [(lv["spp"], lv["rel_mse"]) for lv in levels if lv["rel_mse"] > 0.0]
-    if len(points) < 2:
-        return None
-    x = np.log([p[0] for p in points])
-    y = np.log([p[1] for p in points])
-    return float(np.polyfit(x, y, 1)[0])
+def _reached(seconds: float, spp: float, how: str) -> dict:
+    return {"seconds": seconds, "spp": spp, "how": how, "floor": None}
+
+
+def bias_variance(levels: list[dict]) -> tuple[float, float]:
+    """``(b, c)`` of ``rel_mse = b + c / spp`` fitted to ``levels`` by least squares on
+    relative residuals: ``b`` is the (squared, relative) bias the configuration converges to,
+    ``c / N`` its variance at N spp. ``b`` is clipped to [0, the last level's relative MSE]:
+    an unbiased configuration fits a small ``b`` of either sign."""
+    e = np.array([lv["rel_mse"] for lv in levels])
+    n = np.array([lv["spp"] for lv in levels], dtype=np.float64)
+    if len(levels) < 2 or np.any(e <= 0.0):
+        return 0.0, float(e[-1] * n[-1])
+    (b, c), *_ = np.linalg.lstsq(np.stack([1.0 / e, 1.0 / (n * e)], axis=1), np.ones(len(e)))
+    return float(min(max(b, 0.0), e[-1])), float(c)
+
+
+def refresh_time_to(results: dict) -> None:
+    """Recompute every configuration's time to each target from its levels (after a change
+    of :func:`time_to`, without rendering again)."""
+    for scene in results["scenes"].values():
+        for data in scene["configs"].values():
+            data["time_to"] = {f"{t:g}": time_to(data["levels"], t) for t in TARGETS}
 
 
 class RenderClock:

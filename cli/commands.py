@@ -422,7 +422,7 @@ def render_frames(coordinator, frames: list[int], outputs: list[Path], args) -> 
 
 def cmd_bench(args: argparse.Namespace) -> int:
     """``bench accuracy``: the accuracy study (cli.accuracy), with a progress bar per scene."""
-    from cli.accuracy import DEFAULT_CACHE, REPO_ROOT, StudyOptions, run_study
+    from cli.accuracy import DEFAULT_CACHE, REPO_ROOT, StudyOptions, refresh_time_to, run_study
     from cli.accuracy_report import load_previous, write_report
 
     root = REPO_SCENES
@@ -456,6 +456,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     docs_page = REPO_ROOT / "docs" / "accuracy.md" if args.docs else None
     if args.report_only:
         results, images = load_previous(out)
+        refresh_time_to(results)
         command = results.get("command", command)
         written = write_report(results, images, out, docs_page, command)
         if not args.quiet:
