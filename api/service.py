@@ -51,10 +51,10 @@ from api.events import EventHub
 from api.scenes import SceneEntry, SceneRepository, _write_atomic
 from api.settings import Settings
 from api.store import TERMINAL, Store
+from cluster.progressive import Goal, ProgressiveFrame
 from cluster.scene_graph import SceneGraph
 from tracer import scene_format as fmt
 from tracer.commit_codec import decode_state, encode_state
-from tracer.error_estimate import estimate_rel_error
 from tracer.errors import SceneError
 from tracer.image_io import linear_to_srgb8, write_image
 from tracer.scene_model import SceneState
@@ -63,7 +63,6 @@ log = logging.getLogger("tilerender.api")
 
 SESSION_RENDER_GRACE = 10.0
 """Seconds a session keeps rendering after its last request when no stream is open."""
-MAX_WAVE_SPP = 64
 """Most samples per pixel in one half-wave of a progressive job frame."""
 """Luminance added to the denominator of the relative error (dark pixels do not dominate)."""
 
@@ -118,25 +117,6 @@ def job_state(state: SceneState, request: dict) -> SceneState:
     return dataclasses.replace(state, camera=camera, render=render)
 
 
-@dataclasses.dataclass
-class _Progressive:
-    """The accumulators of one frame rendered in waves: two independent halves."""
-
-    sum_a: np.ndarray
-    sum_b: np.ndarray
-    spp_a: int = 0
-    spp_b: int = 0
-    wave: int = 0
-    started: float = 0.0
-    last_wave_seconds: float = 0.0
-    last_wave_spp: int = 0
-    error: float | None = None
-
-    @property
-    def spp(self) -> int:
-        return self.spp_a + self.spp_b
-
-
 class JobRun:
     """A job being rendered by the render thread, one coordinator frame per :meth:`step`."""
 
@@ -167,7 +147,7 @@ class JobRun:
         self.done_at_start = self.done
         self.inflight = None
         self.last_frame = None
-        self.progressive: _Progressive | None = None
+        self.progressive: ProgressiveFrame | None = None
         self.current: FrameSpec | None = None
         self.current_started = 0.0
         self.samples_done = 0
@@ -207,55 +187,32 @@ class JobRun:
         return self._wave(coordinator, spec, camera, render)
 
     def _wave(self, coordinator, spec: FrameSpec, camera, render):
-        """One half of a wave: waves double their samples (at most ``MAX_WAVE_SPP`` per
-        half), each split into two equal, independent halves A and B, whose difference
-        estimates the error of their mean."""
+        """One half of a wave of a progressive frame (``cluster.progressive``: two independent
+        halves per wave, whose difference estimates the error of their mean)."""
         p = self.progressive
         if p is None:
-            shape = (camera.height, camera.width, 3)
-            p = _Progressive(np.zeros(shape), np.zeros(shape), started=time.monotonic())
-            self.progressive = p
-        first_half = p.wave % 2 == 0
-        if first_half:
-            half = max(1, min(MAX_WAVE_SPP, 2 ** (p.wave // 2), (self.max_spp - p.spp) // 2))
-        else:
-            half = p.spp_a - p.spp_b
+            target = self.request.get("target_error")
+            goal = Goal(
+                target_error=None if target is None else float(target),
+                time_budget=self.frame_budget,
+                max_spp=self.max_spp,
+            )
+            p = self.progressive = ProgressiveFrame(camera.width, camera.height, goal)
+        half = p.next_half()
         t0 = time.monotonic()
         self.inflight = coordinator.submit_frame(
-            spec.number, camera, fmt.override(render, spp=half), p.spp, self.graph
+            spec.number, camera, fmt.override(render, spp=half.spp), half.sample_start, self.graph
         )
         try:
             frame = coordinator.wait_frame(self.inflight)
         finally:
             self.inflight = None
         self.last_frame = frame
-        seconds = time.monotonic() - t0
-        if first_half:
-            p.sum_a += frame.rgb.astype(np.float64) * half
-            p.spp_a += half
-            p.last_wave_seconds, p.last_wave_spp = seconds, half
-        else:
-            p.sum_b += frame.rgb.astype(np.float64) * half
-            p.spp_b += half
-            p.last_wave_seconds += seconds
-            p.last_wave_spp += half
-        self.samples_done += camera.width * camera.height * half
-        p.wave += 1
-        if first_half:
+        p.add_half(frame.rgb, time.monotonic() - t0)
+        self.samples_done += camera.width * camera.height * half.spp
+        if not p.done:
             return None
-        p.error = estimate_rel_error(p.sum_a / p.spp_a, p.sum_b / p.spp_b)
-        elapsed = time.monotonic() - p.started
-        stop = self.max_spp - p.spp < 2
-        if self.mode == "target_error":
-            stop = stop or p.error <= float(self.request["target_error"])
-        else:
-            next_half = min(MAX_WAVE_SPP, 2 ** (p.wave // 2))
-            predicted = p.last_wave_seconds / max(1, p.last_wave_spp) * 2 * next_half
-            stop = stop or elapsed + predicted > self.frame_budget
-        if not stop:
-            return None
-        image = ((p.sum_a + p.sum_b) / p.spp).astype(np.float32)
-        return self._complete(spec, image, p.spp, p.error, elapsed)
+        return self._complete(spec, p.image, p.spp, p.error, p.elapsed)
 
     def _complete(self, spec, image, spp, error, seconds):
         self.todo.pop(0)
@@ -292,8 +249,7 @@ class JobRun:
         elif p is not None and p.error and p.spp and self.done == self.done_at_start:
             target = float(self.request["target_error"])
             needed = min(self.max_spp, p.spp * (p.error / target) ** 2)
-            frame_elapsed = time.monotonic() - p.started
-            eta = frame_elapsed / p.spp * max(0.0, needed - p.spp) * (total - self.done)
+            eta = p.elapsed / p.spp * max(0.0, needed - p.spp) * (total - self.done)
         elif self.done > self.done_at_start:
             eta = elapsed / (self.done - self.done_at_start) * (total - self.done)
         return {
