@@ -15,6 +15,7 @@ real tracers (Bikker's Table 16), and recovery from a killed tracer.
 """
 
 import argparse
+import itertools
 import os
 import signal
 import statistics
@@ -22,6 +23,8 @@ import sys
 import threading
 import time
 from pathlib import Path
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # for `common`
 
@@ -38,7 +41,7 @@ from common import (
 )
 from record_cost_traces import ORBITS, load_orbit_scene, orbit_camera
 
-from cluster.balance import BALANCERS
+from cluster.balance import BALANCERS, CostAware, TracerReport, min_max_cuts
 from cluster.connect import connect, disconnect
 from cluster.coordinator import Coordinator
 from cluster.scene_graph import SceneGraph
@@ -88,25 +91,86 @@ def scaling(size: int, spp: int, repeats: int) -> dict:
     }
 
 
-def idle_real(frames: int, balancers: list[str], width: int, height: int) -> dict:
-    """Mean idle % per orbit and balancer with two one-CPU tracers."""
+class HindsightSplit:
+    """Not a balancer: cuts each frame with the min-max partition of that frame's *true* line
+    costs (recorded in an earlier pass; pixels and costs are deterministic per frame) and each
+    tracer's speed averaged over every frame seen so far. The idle it leaves is what timing
+    noise alone costs on this machine: a floor for every balancer."""
+
+    def __init__(self, costs: list[np.ndarray]) -> None:
+        self.costs = costs
+        self.calls = 0
+        self.work: dict[str, float] = {}
+        self.seconds: dict[str, float] = {}
+
+    def split(self, height: int, tracer_ids: list[str]) -> list[tuple[int, int]]:
+        cost = self.costs[min(self.calls, len(self.costs) - 1)].astype(np.float64)
+        self.calls += 1
+        known = [self.work[t] / self.seconds[t] for t in tracer_ids if self.seconds.get(t)]
+        mean = statistics.fmean(known) if known else 1.0
+        speeds = [
+            self.work[t] / self.seconds[t] if self.seconds.get(t) else mean for t in tracer_ids
+        ]
+        cost = np.maximum(cost, CostAware.FLOOR * max(cost.mean(), 1e-300))
+        return list(itertools.pairwise(min_max_cuts(cost, speeds)))
+
+    def observe(self, height: int, reports: list[TracerReport]) -> None:
+        for r in reports:
+            if r.y1 > r.y0 and r.seconds > 0:
+                self.work[r.tracer] = self.work.get(r.tracer, 0.0) + float(r.line_cost.sum())
+                self.seconds[r.tracer] = self.seconds.get(r.tracer, 0.0) + r.seconds
+
+
+def orbit_run(coordinator: Coordinator, cameras: list, settings) -> list:
+    """One warm-up frame, then every orbit frame; returns the frames."""
+    coordinator.render_frame(camera=cameras[0], settings=settings)
+    return [
+        coordinator.render_frame(frame=k, camera=cam, settings=settings)
+        for k, cam in enumerate(cameras)
+    ]
+
+
+def speed_noise(frames: list) -> float:
+    """Timing noise: the coefficient of variation, over frames, of each tracer's speed (its
+    range's cost per busy second), averaged over tracers, in %."""
+    speeds: dict[str, list[float]] = {}
+    for f in frames:
+        for r in f.ranges:
+            if r.kind == "split" and r.y1 > r.y0:
+                work = float(f.cost[r.y0 : r.y1].sum())
+                speeds.setdefault(r.tracer, []).append(work / (r.seconds + r.apply_seconds))
+    cvs = [np.std(v) / np.mean(v) for v in speeds.values() if len(v) > 2]
+    return 100 * statistics.fmean(cvs) if cvs else float("nan")
+
+
+def idle_real(frames: int, balancers: list[str], width: int, height: int, oracle: bool) -> dict:
+    """Mean idle % per orbit and balancer with two one-CPU tracers; with ``oracle``, also the
+    hindsight split (:class:`HindsightSplit`) of the costs the first balancer's run recorded,
+    and the timing noise of every run."""
     state, _ = load_orbit_scene()
     settings = state.render.model_copy(update={"spp": 1})
     results: dict[str, dict[str, float]] = {}
+    noise: dict[str, dict[str, float]] = {}
     for orbit in ("slow", "fast"):
         degrees = ORBITS[orbit][0]
         cameras = [orbit_camera(degrees * k / frames, width, height) for k in range(frames)]
-        results[orbit] = {}
-        for name in balancers:
-            with Coordinator(SceneGraph(state), tracers=2, cpus_per_tracer=1.0, balancer=name) as c:
-                c.render_frame(camera=cameras[0], settings=settings)  # warm-up
-                idle = [
-                    c.render_frame(frame=k, camera=cam, settings=settings).idle_percent
-                    for k, cam in enumerate(cameras)
-                ]
-            results[orbit][name] = statistics.fmean(idle)
-            note(f"{orbit} orbit, {name}: {results[orbit][name]:.2f}% idle")
-    return results
+        results[orbit], noise[orbit] = {}, {}
+        recorded: list[np.ndarray] = []
+        for name in [*balancers, *(["oracle"] if oracle else [])]:
+            with Coordinator(SceneGraph(state), tracers=2, cpus_per_tracer=1.0) as c:
+                if name == "oracle":
+                    c.balancer = HindsightSplit(recorded)
+                else:
+                    c.use_balancer(name)
+                done = orbit_run(c, cameras, settings)
+            recorded = recorded or [done[0].cost, *(f.cost for f in done)]
+            results[orbit][name] = statistics.fmean(f.idle_percent for f in done)
+            noise[orbit][name] = speed_noise(done)
+            note(
+                f"{orbit} orbit, {name}: {results[orbit][name]:.2f}% idle, "
+                f"speed noise {noise[orbit][name]:.1f}%"
+            )
+    return {**results, "speed_noise_percent": noise}
 
 
 def recovery(size: int, spp: int) -> dict:
@@ -154,6 +218,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--orbit-size", type=int, nargs=2, default=[128, 96], metavar=("W", "H"))
     parser.add_argument("--balancers", nargs="+", default=list(BALANCERS), choices=list(BALANCERS))
     parser.add_argument("--skip", nargs="*", default=[], choices=["scaling", "idle", "recovery"])
+    parser.add_argument(
+        "--no-oracle",
+        action="store_true",
+        help="skip the hindsight split (exact costs of each frame, recorded by the first "
+        "balancer's run): the idle that timing noise alone leaves",
+    )
     parser.add_argument("--quick", action="store_true", help="small sizes, few frames")
     args = parser.parse_args(argv)
     if args.quick:
@@ -199,13 +269,16 @@ def main(argv: list[str] | None = None) -> int:
             )  # fmt: skip
         if "idle" not in args.skip:
             width, height = args.orbit_size
-            idle = idle_real(args.frames, args.balancers, width, height)
+            idle = idle_real(args.frames, args.balancers, width, height, not args.no_oracle)
             payload["idle_real"] = idle
+            rows = [*args.balancers, *([] if args.no_oracle else ["oracle"])]
+            noise = idle["speed_noise_percent"]
             print_table(
-                f"Idle % with 2 real tracers (1 CPU each), {args.frames} frames, {width}x{height}",
-                ["balancer", "slow orbit", "fast orbit"],
-                [[b, fmt_float(idle["slow"][b]), fmt_float(idle["fast"][b])]
-                 for b in args.balancers],
+                f"Idle % with 2 real tracers (1 CPU each), {args.frames} frames, {width}x{height}"
+                " (speed noise: CV of each tracer's cost per second over frames)",
+                ["balancer", "slow orbit", "fast orbit", "speed noise slow / fast"],
+                [[b, fmt_float(idle["slow"][b]), fmt_float(idle["fast"][b]),
+                  f"{noise['slow'][b]:.1f}% / {noise['fast'][b]:.1f}%"] for b in rows],
             )  # fmt: skip
         if "recovery" not in args.skip:
             rec = recovery(args.overhead_size, args.spp * 4)
