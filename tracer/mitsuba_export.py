@@ -21,9 +21,11 @@ import trimesh
 
 from tracer import scene_format as fmt
 from tracer.bsdf import ETA, SMOOTH_ALPHA, K
+from tracer.environment import EnvironmentMap
 from tracer.image_io import write_image
 from tracer.materials import PLASTIC_MIN_ALPHA, material_row, roughness_to_alpha
 from tracer.scene_model import SceneState, WorldMesh
+from tracer.textures import srgb_to_linear
 
 SKY_ROWS = 4096
 """Rows of the latitude-longitude bitmap of a gradient sky (Mitsuba puts row ``i`` at polar angle
@@ -36,6 +38,10 @@ SUN_DISTANCE = 1e4
 """A sun with a radius becomes a disc this many scene radii away (parallax below 1e-4 rad)."""
 EMITTER_OFFSET = 1e-5
 """Gap, in scene diagonals, behind the back copy of a two-sided emitter on an open mesh."""
+ENVIRONMENT_TEXELS = 1 << 21
+"""An environment map is resampled to about this many texels (see :func:`environment_bitmap`)."""
+ENVIRONMENT_MAX_FACTOR = 32
+"""At most this many bitmap texels per map pixel, along each axis."""
 
 DeviationKind = Literal["proxy", "model"]
 
@@ -77,8 +83,8 @@ class MitsubaExport:
 
 
 KNOWN_FIELDS = {
-    fmt.DiffuseMaterial: {"type", "reflectance", "emission", "two_sided"},
-    fmt.MirrorMaterial: {"type", "reflectance", "emission", "two_sided"},
+    fmt.DiffuseMaterial: {"type", "reflectance", "emission", "two_sided", "texture"},
+    fmt.MirrorMaterial: {"type", "reflectance", "emission", "two_sided", "texture"},
     fmt.DielectricMaterial: {"type", "ior", "absorption"},
     fmt.ConductorMaterial: {
         "type",
@@ -88,10 +94,21 @@ KNOWN_FIELDS = {
         "roughness",
         "emission",
         "two_sided",
+        "texture",
     },
-    fmt.PlasticMaterial: {"type", "reflectance", "ior", "roughness", "emission", "two_sided"},
+    fmt.PlasticMaterial: {
+        "type",
+        "reflectance",
+        "ior",
+        "roughness",
+        "emission",
+        "two_sided",
+        "texture",
+    },
+    fmt.Texture: {"file", "wrap", "scale"},
     fmt.ConstantSky: {"type", "radiance"},
     fmt.GradientSky: {"type", "zenith", "horizon", "ground"},
+    fmt.EnvironmentSky: {"type", "file", "scale", "rotation"},
     fmt.PointLight: {"type", "position", "intensity"},
     fmt.SpotLight: {"type", "position", "look_at", "intensity", "cone_angle_deg", "falloff_deg"},
     fmt.SunLight: {"type", "to_sun", "irradiance", "angular_radius_deg"},
@@ -213,8 +230,10 @@ def _frame(normal: np.ndarray) -> np.ndarray:
     return np.column_stack([x, np.cross(z, x), z])
 
 
-def sky_radiance(sky: fmt.Sky, direction) -> np.ndarray:
+def sky_radiance(sky: fmt.Sky | EnvironmentMap, direction) -> np.ndarray:
     """Radiance the sky sends from ``direction`` (unit, +y up), as ``tracer.lights`` defines it."""
+    if isinstance(sky, EnvironmentMap):
+        return environment_radiance(sky, direction)
     if isinstance(sky, fmt.GradientSky):
         y = float(direction[1])
         if y < 0.0:
@@ -231,6 +250,66 @@ def gradient_sky_bitmap(sky: fmt.GradientSky) -> np.ndarray:
     y = np.cos(np.arange(SKY_ROWS) * math.pi / (SKY_ROWS - 1))
     rows = np.stack([sky_radiance(sky, (0.0, yi, 0.0)) for yi in y])
     return np.repeat(rows[:, None, :], SKY_COLUMNS, axis=1).astype(np.float32)
+
+
+def environment_scaled(sky: EnvironmentMap) -> np.ndarray:
+    """The map's pixels times its ``scale``, float32, as ``tracer.environment_light`` scales
+    them for the kernels."""
+    return (sky.image.astype(np.float64) * sky.model.scale).astype(np.float32)
+
+
+def environment_radiance(sky: EnvironmentMap, direction) -> np.ndarray:
+    """The map's radiance from unit ``direction``: the pixel ``tracer.environment_light`` looks
+    up (nearest pixel, after turning the direction into the map's frame)."""
+    h, w = sky.image.shape[:2]
+    d = _environment_frame(sky.model.rotation) @ np.asarray(direction, dtype=np.float64)
+    v = math.atan2(math.hypot(d[0], d[2]), d[1]) / math.pi
+    u = math.atan2(d[0], -d[2]) / (2.0 * math.pi) + 0.5
+    i = min(max(int(v * h), 0), h - 1)
+    j = min(max(int(u * w), 0), w - 1)
+    return environment_scaled(sky)[i, j].astype(np.float64)
+
+
+def _environment_frame(rotation_deg: float) -> np.ndarray:
+    """World -> map directions: the inverse of the map's ``rotation`` about +y."""
+    c, s = math.cos(math.radians(rotation_deg)), math.sin(math.radians(rotation_deg))
+    return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+
+
+def environment_to_world(rotation_deg: float) -> np.ndarray:
+    """4x4 ``to_world`` of Mitsuba's ``envmap`` for our map turned by ``rotation_deg``.
+
+    Mitsuba reads ``u = atan2(x, -z) / 2 pi`` (wrapped to [0, 1)) of the local direction: its
+    image centre looks along +z, ours along -z, with ``u`` growing toward +x in both. So the
+    local direction is ours in the map's frame turned by 180 degrees about +y (``F``), and
+    ``to_world = (F R)^-1``, ``R`` the world -> map turn."""
+    flip = np.diag([-1.0, 1.0, -1.0])
+    matrix = np.eye(4)
+    matrix[:3, :3] = np.linalg.inv(flip @ _environment_frame(rotation_deg))
+    return matrix
+
+
+def environment_bitmap(sky: EnvironmentMap) -> tuple[np.ndarray, int]:
+    """The map (scale applied) as Mitsuba's ``envmap`` bitmap, and the factor ``k`` it was
+    upsampled by: ``(k H + 1, k W, 3)`` float32.
+
+    Ours is constant over each pixel; Mitsuba interpolates bilinearly between texels placed at
+    ``u = (j + 0.5) / W'`` (wrapping around) and at polar angles ``i pi / (H' - 1)`` (measured
+    on 3.9.1). With ``W' = k W`` the edges of our columns fall midway between two texels; with
+    ``H' = k H + 1`` the edges of our rows fall on a texel, which takes the mean of the two
+    rows. Each edge becomes a linear ramp, symmetric about it, of one texel each side: the
+    map's integral is kept and a lookup differs from ours only within ``1 / k`` of a pixel
+    from its edges."""
+    scaled = environment_scaled(sky)
+    h, w = scaled.shape[:2]
+    k = max(1, min(ENVIRONMENT_MAX_FACTOR, math.isqrt(ENVIRONMENT_TEXELS // (h * w))))
+    columns = np.repeat(scaled, k, axis=1)
+    fine = np.arange(k * h + 1)
+    rows = columns[np.minimum(fine // k, h - 1)]
+    edges = fine[(fine % k == 0) & (fine > 0) & (fine < k * h)]
+    above = columns[edges // k - 1].astype(np.float64)
+    rows[edges] = (0.5 * (above + columns[edges // k])).astype(np.float32)
+    return rows, k
 
 
 def spot_profile(cone_angle_deg: float, falloff_deg: float, cos_theta: np.ndarray) -> np.ndarray:
@@ -301,8 +380,12 @@ class _Writer:
         self.center = 0.5 * (self.lo + self.hi)
         self.radius = max(0.5 * float(np.linalg.norm(self.hi - self.lo)), 1e-6)
         for name in sorted({m.material for m in self.meshes}):
-            _check_fields(state.materials[name], f"material {name!r}")
-        _check_fields(state.sky, "sky")
+            material = state.materials[name]
+            _check_fields(material, f"material {name!r}")
+            if getattr(material, "texture", None) is not None:
+                _check_fields(material.texture, f"material {name!r}: texture")
+        sky = state.sky
+        _check_fields(sky.model if isinstance(sky, EnvironmentMap) else sky, "sky")
         for i, light in enumerate(state.lights):
             _check_fields(light, f"lights[{i}]")
         self.delta_lights = any(
@@ -396,15 +479,37 @@ class _Writer:
             root.append(bsdf)
         return ids
 
+    def _colour(self, parent: ET.Element, name: str, m: fmt.Material, colour) -> None:
+        """The base colour ``colour`` of ``m`` as parameter ``name``: an RGB value, or with a
+        texture a bitmap of the texture's linear texels times the colour."""
+        texture = getattr(m, "texture", None)
+        if texture is None:
+            _rgb(parent, name, colour)
+            return
+        # The kernels multiply the float32 colour by the float32 linear texel.
+        linear = srgb_to_linear(self.state.textures[texture.file]).astype(np.float64)
+        tint = np.asarray(colour, dtype=np.float32).astype(np.float64)
+        texels = (linear * tint).astype(np.float32)
+        digest = hashlib.sha256(np.ascontiguousarray(texels).tobytes())
+        digest.update(repr(texels.shape).encode())
+        relative = f"textures/texture-{digest.hexdigest()[:16]}.exr"
+        if not (self.out / relative).exists():
+            write_image(self.out / relative, texels)
+        element = _child(parent, "texture", type="bitmap", name=name)
+        _child(element, "string", name="filename", value=relative)
+        _child(element, "boolean", name="raw", value="true")
+        _child(element, "string", name="filter_type", value="bilinear")
+        _child(element, "string", name="wrap_mode", value=texture.wrap)
+
     def _bsdf(self, name: str, m: fmt.Material) -> ET.Element:
         if isinstance(m, fmt.DiffuseMaterial):
             bsdf = ET.Element("bsdf", type="diffuse")
-            _rgb(bsdf, "reflectance", m.reflectance)
+            self._colour(bsdf, "reflectance", m, m.reflectance)
             return bsdf
         if isinstance(m, fmt.MirrorMaterial):
             bsdf = ET.Element("bsdf", type="conductor")
             _child(bsdf, "string", name="material", value="none")
-            _rgb(bsdf, "specular_reflectance", m.reflectance)
+            self._colour(bsdf, "specular_reflectance", m, m.reflectance)
             return bsdf
         if isinstance(m, fmt.DielectricMaterial):
             bsdf = ET.Element("bsdf", type="dielectric")
@@ -436,6 +541,8 @@ class _Writer:
             )
         _rgb(bsdf, "eta", param[ETA : ETA + 3])
         _rgb(bsdf, "k", param[K : K + 3])
+        if m.texture is not None:  # a tint on the Fresnel term
+            self._colour(bsdf, "specular_reflectance", m, (1.0, 1.0, 1.0))
         return bsdf
 
     def _plastic(self, name: str, m: fmt.PlasticMaterial) -> ET.Element:
@@ -466,24 +573,44 @@ class _Writer:
             )
         _float(bsdf, "int_ior", m.ior)
         _float(bsdf, "ext_ior", 1.0)
-        _rgb(bsdf, "diffuse_reflectance", m.reflectance)
+        self._colour(bsdf, "diffuse_reflectance", m, m.reflectance)
         _child(bsdf, "boolean", name="nonlinear", value="false")
         return bsdf
 
     # -- geometry and area lights
 
-    def _write_ply(self, index: int, name: str, vertices: np.ndarray, faces: np.ndarray) -> str:
+    def _write_ply(
+        self, index: int, name: str, vertices: np.ndarray, faces: np.ndarray, uvs=None
+    ) -> str:
         relative = f"meshes/{index:04d}-{_slug(name)}.ply"
         path = self.out / relative
         path.parent.mkdir(parents=True, exist_ok=True)
-        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        visual = None if uvs is None else trimesh.visual.TextureVisuals(uv=uvs)
+        mesh = trimesh.Trimesh(vertices, faces, visual=visual, process=False)
         path.write_bytes(mesh.export(file_type="ply", encoding="binary", vertex_normal=False))
         return relative
+
+    def _mitsuba_uvs(self, mesh: WorldMesh) -> np.ndarray | None:
+        """The UVs Mitsuba's ``bitmap`` needs for a textured mesh (None without a texture).
+
+        Ours: ``v`` from the bottom of the image up, multiplied by the texture's ``scale``
+        before the lookup; Mitsuba's ``v`` runs from the top row down (its PLY loader keeps
+        the file's values). So the PLY holds ``(s_u u, 1 - s_v v)``, from the float32 UVs the
+        kernels interpolate."""
+        texture = getattr(self.state.materials[mesh.material], "texture", None)
+        if texture is None:
+            return None
+        uvs = self.state.meshes[self.state.nodes[mesh.node].mesh].uvs
+        if uvs is None:
+            raise UnsupportedFeature(f"mesh {mesh.name!r}", "a texture on a mesh without UVs")
+        uv = uvs.astype(np.float32).astype(np.float64) * np.asarray(texture.scale)
+        return np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])
 
     def _shape(self, root: ET.Element, index: int, mesh: WorldMesh, bsdf_id: str) -> None:
         material = self.state.materials[mesh.material]
         emission = tuple(getattr(material, "emission", (0.0, 0.0, 0.0)))
         emits = max(emission) > 0.0
+        uvs = self._mitsuba_uvs(mesh)
         copies = [(mesh.name, mesh.vertices, mesh.faces)]
         if emits and material.two_sided and not self._emits_outside_only(mesh):
             copies.append((f"{mesh.name}-back", *self._back_copy(mesh)))
@@ -495,7 +622,7 @@ class _Writer:
             )
         for part, (name, vertices, faces) in enumerate(copies):
             shape = _child(root, "shape", type="ply")
-            filename = self._write_ply(2 * index + part, name, vertices, faces)
+            filename = self._write_ply(2 * index + part, name, vertices, faces, uvs)
             _child(shape, "string", name="filename", value=filename)
             _child(shape, "boolean", name="face_normals", value="true")
             _child(shape, "ref", id=bsdf_id)
@@ -535,6 +662,9 @@ class _Writer:
 
     def _sky(self, root: ET.Element) -> None:
         sky = self.state.sky
+        if isinstance(sky, EnvironmentMap):
+            self._environment(root, sky)
+            return
         if isinstance(sky, fmt.ConstantSky):
             if max(sky.radiance) > 0.0:
                 emitter = _child(root, "emitter", type="constant")
@@ -550,6 +680,26 @@ class _Writer:
             "proxy",
             f"a {SKY_COLUMNS}x{SKY_ROWS} latitude-longitude bitmap, interpolated bilinearly: "
             "within 1e-5 of the gradient except a 0.02-degree band about the horizon",
+        )
+
+    def _environment(self, root: ET.Element, sky: EnvironmentMap) -> None:
+        if max(sky.mean_radiance()) <= 0.0:
+            return  # a black map: no light, as the kernels treat it
+        bitmap, factor = environment_bitmap(sky)
+        digest = hashlib.sha256(np.ascontiguousarray(bitmap).tobytes()).hexdigest()[:16]
+        relative = f"textures/environment-{digest}.exr"
+        write_image(self.out / relative, bitmap)
+        emitter = _child(root, "emitter", type="envmap")
+        _child(emitter, "string", name="filename", value=relative)
+        _matrix(emitter, environment_to_world(sky.model.rotation))
+        h, w = sky.image.shape[:2]
+        self.note(
+            "environment map",
+            "proxy",
+            f"our {w}x{h} map (nearest pixel) upsampled {factor} times to a "
+            f"{bitmap.shape[1]}x{bitmap.shape[0]} bitmap that Mitsuba interpolates bilinearly: "
+            f"its integral kept, lookups within 1/{factor} of a pixel from the map's pixel "
+            "edges differ",
         )
 
     def _light(self, root: ET.Element, i: int, light: fmt.Light) -> None:
@@ -626,4 +776,6 @@ class _Writer:
         )
         if isinstance(self.state.sky, fmt.GradientSky):
             detail += "; the gradient sky behind the disc is replaced by its value at the centre"
+        elif isinstance(self.state.sky, EnvironmentMap):
+            detail += "; the environment map behind the disc is replaced by its value at the centre"
         self.note(f"sun lights[{i}] with a radius", "proxy", detail)

@@ -2,6 +2,7 @@
 docs/mitsuba.md gives; what Mitsuba cannot express raises naming the feature."""
 
 import dataclasses
+import json
 import math
 import subprocess
 import sys
@@ -11,14 +12,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
 from tracer import mitsuba_export as mx
 from tracer import scene_format as fmt
-from tracer.image_io import read_image
+from tracer.environment_light import environment_lookup, sampling_tables
+from tracer.image_io import read_image, write_image
 from tracer.loader import SceneData, load_scene
 from tracer.materials import conductor_index_from_reflectance
 from tracer.mitsuba_export import UnsupportedFeature, export_scene
 from tracer.shapes import box, rectangle, sphere
+from tracer.textures import bilinear, srgb_to_linear, texture_table
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = [
@@ -30,6 +34,8 @@ SAMPLES = [
     "nefertiti/scene.json",
     "outdoor/scene.json",
     "gltf-box/Box.gltf",
+    "environment/scene.json",
+    "textured/scene.json",
 ]
 
 
@@ -438,17 +444,189 @@ def test_an_unknown_sky_kind_raises_naming_it(tmp_path):
         export_scene(state, tmp_path)
 
 
-@pytest.mark.parametrize(
-    "relative, feature",
-    [
-        ("environment/scene.json", "sky of type 'environment'"),
-        ("textured/scene.json", ": texture"),
-    ],
-)
-def test_environment_maps_and_textures_are_not_exported_yet(tmp_path, relative, feature):
-    with pytest.raises(UnsupportedFeature) as error:
-        export_scene(load_scene(ROOT / "scenes" / relative), tmp_path)
-    assert error.value.feature.endswith(feature), error.value.feature
+def textured_scene(folder: Path, rotation: float = 30.0) -> Path:
+    """A scene file with a random 12x6 environment map (scale 1.5, turned by ``rotation``) and a
+    2 x 1 rectangle at z = 0 with a random 7x5 texture (tinted, repeated, UVs scaled), plus a
+    textured conductor and mirror further back."""
+    rng = np.random.default_rng(1)
+    write_image(folder / "env.exr", rng.uniform(0.1, 2.0, (6, 12, 3)).astype(np.float32))
+    Image.fromarray(rng.integers(0, 256, (5, 7, 3), dtype=np.uint8)).save(folder / "tex.png")
+    texture = {"file": "tex.png", "wrap": "repeat", "scale": [1.5, 2.0]}
+    scene = {
+        "format": "tilerender/1",
+        "camera": {"position": [0, 0, 3], "look_at": [0, 0, 0], "width": 8, "height": 8},
+        "sky": {"type": "environment", "file": "env.exr", "scale": 1.5, "rotation": rotation},
+        "materials": {
+            "t": {"reflectance": [0.9, 0.5, 0.7], "texture": texture},
+            "metal": {"type": "conductor", "reflectance": [0.9, 0.8, 0.5], "texture": texture},
+            "mirror": {"type": "mirror", "reflectance": [0.5, 0.5, 0.5], "texture": texture},
+        },
+        "objects": [
+            {"name": "quad", "shape": {"type": "rectangle", "size": [2, 1]}, "material": "t"},
+            {"name": "metal", "shape": {"type": "rectangle", "size": [1, 1]}, "material": "metal",
+             "transform": {"translate": [0, 0, -2]}},
+            {"name": "mirror", "shape": {"type": "rectangle", "size": [1, 1]},
+             "material": "mirror", "transform": {"translate": [0, 0, -4]}},
+        ],
+    }  # fmt: skip
+    path = folder / "scene.json"
+    path.write_text(json.dumps(scene))
+    return path
+
+
+def bitmap_of(tmp_path, parent):
+    texture = parent.find("texture")
+    assert texture.get("type") == "bitmap"
+    assert value(texture, "boolean", "raw") == "true"
+    assert value(texture, "string", "filter_type") == "bilinear"
+    return texture, read_image(tmp_path / value(texture, "string", "filename"))
+
+
+def test_textures_are_bitmaps_of_linear_texels_times_the_base_colour(tmp_path):
+    state = load_scene(textured_scene(tmp_path))
+    result, root = export(tmp_path / "out", state)
+    linear = srgb_to_linear(state.textures["tex.png"])
+    names = sorted({m.material for m in state.world_meshes()})  # material-<i> in this order
+    expected = {"t": ("reflectance", [0.9, 0.5, 0.7]), "metal": ("specular_reflectance", 1.0),
+                "mirror": ("specular_reflectance", [0.5, 0.5, 0.5])}  # fmt: skip
+    for name, (parameter, tint) in expected.items():
+        _, inner = bsdf(root, names.index(name))
+        texture, image = bitmap_of(tmp_path / "out", inner)
+        assert texture.get("name") == parameter
+        assert value(texture, "string", "wrap_mode") == "repeat"
+        np.testing.assert_allclose(image, linear * np.float32(tint), rtol=1e-6)
+    metal = bsdf(root, names.index("metal"))[1]
+    assert metal.get("type") == "conductor" and metal.find("rgb[@name='eta']") is not None
+    assert result.deviations[0].feature == "environment map"
+
+
+def test_plastic_texture_tints_its_base_and_clamp_is_kept(tmp_path):
+    Image.fromarray(np.full((2, 3, 3), 128, np.uint8)).save(tmp_path / "grey.png")
+    plastic = {"type": "plastic", "reflectance": [0.2, 0.4, 0.6], "roughness": 0.0,
+               "texture": {"file": "grey.png", "wrap": "clamp"}}  # fmt: skip
+    quad = {"name": "q", "shape": {"type": "rectangle"}, "material": "p"}
+    scene = {"format": "tilerender/1", "materials": {"p": plastic}, "objects": [quad]}
+    (tmp_path / "scene.json").write_text(json.dumps(scene))
+    _, root = export(tmp_path / "out", load_scene(tmp_path / "scene.json"))
+    _, inner = bsdf(root)
+    assert inner.get("type") == "plastic" and inner.find("rgb[@name='diffuse_reflectance']") is None
+    texture, image = bitmap_of(tmp_path / "out", inner)
+    assert texture.get("name") == "diffuse_reflectance"
+    assert value(texture, "string", "wrap_mode") == "clamp"
+    expected = srgb_to_linear(np.uint8(128)) * np.float32([0.2, 0.4, 0.6])
+    np.testing.assert_allclose(image[0, 0], expected, rtol=1e-6)
+
+
+def test_textured_meshes_carry_scaled_uvs_with_v_from_the_top(tmp_path):
+    state = load_scene(textured_scene(tmp_path))
+    _, root = export(tmp_path / "out", state)
+    shapes = [s for s in root.findall("shape") if s.get("type") == "ply"]
+    for shape, mesh in zip(shapes, state.world_meshes(), strict=True):
+        ply = trimesh.load(tmp_path / "out" / value(shape, "string", "filename"), process=False)
+        uvs = state.meshes[state.nodes[mesh.node].mesh].uvs
+        expected = np.column_stack([1.5 * uvs[:, 0], 1.0 - 2.0 * uvs[:, 1]])
+        np.testing.assert_allclose(ply.visual.uv, expected, atol=1e-7)
+    plain = load_scene(ROOT / "scenes" / "veach-mis" / "scene.json")
+    _, root = export(tmp_path / "plain", plain)
+    first = root.find("shape[@type='ply']")
+    header = (tmp_path / "plain" / value(first, "string", "filename")).read_bytes()[:400]
+    assert b"property float x" in header and b" s\n" not in header  # no UVs without a texture
+
+
+def test_environment_map_is_upsampled_keeping_its_pixels_and_integral(tmp_path):
+    state = load_scene(textured_scene(tmp_path))
+    sky = state.sky
+    bitmap, k = mx.environment_bitmap(sky)
+    h, w = sky.image.shape[:2]
+    scaled = (sky.image.astype(np.float64) * 1.5).astype(np.float32)
+    assert k == mx.ENVIRONMENT_MAX_FACTOR and bitmap.shape == (k * h + 1, k * w, 3)
+    # Away from the edges, texel (i', j') holds the pixel it lies in; an edge row the mean.
+    np.testing.assert_array_equal(bitmap[1:k, :k], np.broadcast_to(scaled[0, 0], (k - 1, k, 3)))
+    np.testing.assert_array_equal(bitmap[0, ::k], scaled[0])
+    np.testing.assert_allclose(bitmap[k, 5 * k], 0.5 * (scaled[0, 5] + scaled[1, 5]), rtol=1e-6)
+    np.testing.assert_array_equal(bitmap[-1, ::k], scaled[-1])
+    # Integrated over the sphere as Mitsuba interpolates it (rows at i' pi / (H' - 1),
+    # linear in between), the mean radiance is ours (1.5 x the image's mean) to O(1/k^2).
+    theta = np.linspace(0.0, math.pi, 20001)
+    texel_theta = np.linspace(0.0, math.pi, k * h + 1)
+    row_means = bitmap.mean(axis=1)
+    rows = np.stack([np.interp(theta, texel_theta, row_means[:, c]) for c in range(3)], axis=1)
+    weights = np.sin(theta)
+    mitsuba_mean = (rows * weights[:, None]).sum(axis=0) / weights.sum()
+    np.testing.assert_allclose(mitsuba_mean, sky.mean_radiance(), rtol=2e-3)
+
+
+def test_environment_to_world_turns_our_centre_to_mitsubas(tmp_path):
+    """Mitsuba looks up ``u = atan2(x, -z) / 2 pi`` of the local direction (its image centre
+    along +z); ours has the centre along -z, turned by ``rotation`` about +y."""
+    for rotation in (0.0, 30.0, -120.0):
+        matrix = mx.environment_to_world(rotation)[:3, :3]
+        r = math.radians(rotation)
+        # Our image centre looks along -z turned counter-clockwise (seen from above) by r.
+        centre = np.array([-math.sin(r), 0.0, -math.cos(r)])
+        local = np.linalg.solve(matrix, centre)
+        u = math.atan2(local[0], -local[2]) / (2.0 * math.pi) % 1.0
+        assert u == pytest.approx(0.5)
+        np.testing.assert_allclose(matrix @ [0.0, 1.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
+
+
+def test_sun_disc_over_an_environment_map_adds_the_map_behind_it(tmp_path):
+    state = load_scene(textured_scene(tmp_path))
+    to_sun = np.array([0.3, 0.8, -0.5]) / np.linalg.norm([0.3, 0.8, -0.5])
+    sun = fmt.SunLight(
+        type="sun", to_sun=tuple(to_sun), irradiance=(3, 2, 1), angular_radius_deg=1.0
+    )
+    result, root = export(tmp_path / "out", dataclasses.replace(state, lights=(sun,)))
+    radiance = numbers(value(root.find("shape[@type='disk']/emitter"), "rgb", "radiance"))
+    t = sampling_tables(state.sky.image, 1.5)
+    r = math.radians(30.0)
+    behind, _ = environment_lookup(t.image, t.rows, t.cols, math.cos(r), math.sin(r), to_sun)
+    own = np.array([3, 2, 1]) / (math.pi * math.sin(math.radians(1.0)) ** 2)
+    np.testing.assert_allclose(radiance, own + behind, rtol=1e-9)
+    assert any("environment map behind" in d.detail for d in result.deviations)
+
+
+def test_mitsuba_sees_our_environment_orientation_and_texture_uvs(tmp_path):
+    """In Mitsuba itself (optional here): its envmap at the centre of each of our pixels (any
+    rotation) returns that pixel, and its bitmap at random points of the rectangle returns our
+    bilinear lookup there, tint, UV scale and wrap included."""
+    mi = pytest.importorskip("mitsuba")
+    import drjit as dr
+
+    mi.set_variant("scalar_rgb")
+    state = load_scene(textured_scene(tmp_path))
+    scene = mi.load_file(str(export_scene(state, tmp_path / "out").xml_path))
+    sky = state.sky
+    t = sampling_tables(sky.image, sky.model.scale)
+    h, w = sky.image.shape[:2]
+    r = math.radians(sky.model.rotation)
+    c, s = math.cos(r), math.sin(r)
+    for i in range(h):
+        for j in range(w):
+            theta, phi = math.pi * (i + 0.5) / h, 2.0 * math.pi * ((j + 0.5) / w - 0.5)
+            m = np.array([math.sin(theta) * math.sin(phi), math.cos(theta),
+                          -math.sin(theta) * math.cos(phi)])  # fmt: skip
+            d = np.array([c * m[0] + s * m[2], m[1], c * m[2] - s * m[0]])  # map -> world
+            ours, _ = environment_lookup(t.image, t.rows, t.cols, c, s, d)
+            np.testing.assert_array_equal(ours, t.image[i, j])
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            si.wi = mi.Vector3f(-d)
+            np.testing.assert_allclose(np.array(scene.environment().eval(si)), ours, rtol=1e-6)
+
+    quad = state.meshes[state.nodes[0].mesh]
+    np.testing.assert_array_equal(quad.uvs, [[0, 0], [1, 0], [1, 1], [0, 1]])
+    np.testing.assert_array_equal(
+        quad.vertices[:, :2], [[-1, -0.5], [1, -0.5], [1, 0.5], [-1, 0.5]]
+    )
+    table = texture_table(state.textures, [state.materials["t"]])
+    tint = np.array([0.9, 0.5, 0.7], np.float32)
+    rng = np.random.default_rng(0)
+    for x, y in rng.uniform((-1.0, -0.5), (1.0, 0.5), (200, 2)):
+        si = scene.ray_intersect(mi.Ray3f(mi.Point3f(x, y, 1.0), mi.Vector3f(0, 0, -1)))
+        theirs = np.array(si.bsdf().eval_diffuse_reflectance(si))
+        u, v = (x + 1.0) / 2.0, y + 0.5  # the quad's UV at (x, y)
+        ours = np.array(bilinear(table.pixels, table.info, table.scale, 0, u, v)) * tint
+        np.testing.assert_allclose(theirs, ours, atol=2e-6)
 
 
 def test_winding_numbers_tell_inside_from_outside():
