@@ -128,6 +128,16 @@ class RequestMetrics:
 
 
 def _route(scope) -> str:
+    """The matched route's template with the prefixes of the routers it was included in
+    (``/v1/scenes/{scene_id}``): the route FastAPI reports carries only its own path, so the
+    prefix is the part of the request path before the stretch the route's pattern matches."""
     route = scope.get("route")
-    path = getattr(route, "path", None)
-    return path or "unmatched"
+    template = getattr(route, "path", None)
+    if not template:
+        return "unmatched"
+    path, pattern = scope.get("path", ""), getattr(route, "path_regex", None)
+    if pattern is not None and not pattern.fullmatch(path):
+        for i in range(1, len(path)):
+            if path[i] == "/" and pattern.fullmatch(path[i:]):
+                return path[:i] + template
+    return template

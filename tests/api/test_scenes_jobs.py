@@ -60,6 +60,9 @@ def test_upload_json_with_files_and_inspect(client):
     assert {"refraction", "specular"} <= set(after["effects"])  # the plan follows commits
     listed = client.get("/v1/scenes").json()
     assert scene["id"] in [s["id"] for s in listed["data"]]
+    metrics = client.get("/metrics").text  # requests are labelled by their full route template
+    assert 'method="POST",route="/v1/scenes/{scene_id}/commits",status="200"' in metrics
+    assert 'method="GET",route="/readyz",status="200"' in metrics
 
 
 def test_upload_bundle_mesh_and_json_body(client):
