@@ -53,6 +53,8 @@ SCENES = {
     "mitsuba/many-lights": ("mitsuba/many-lights/scene.json", 4),
     "mitsuba/lamps": ("mitsuba/lamps/scene.json", 4),
     "mitsuba/sun": ("mitsuba/sun/scene.json", 4),
+    "mitsuba/textured": ("mitsuba/textured/scene.json", 2),
+    "mitsuba/environment": ("mitsuba/environment/scene.json", 2),
 }
 """Name -> (scene file under scenes/, factor the reference's size is divided by)."""
 MEAN_FILE = "mitsuba_mean.npy"
