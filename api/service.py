@@ -63,8 +63,8 @@ log = logging.getLogger("tilerender.api")
 
 SESSION_RENDER_GRACE = 10.0
 """Seconds a session keeps rendering after its last request when no stream is open."""
-"""Most samples per pixel in one half-wave of a progressive job frame."""
-"""Luminance added to the denominator of the relative error (dark pixels do not dominate)."""
+NODE_RESCAN_SECONDS = 5.0
+"""How often the render thread looks for Ray nodes without a tracer (nodes that joined)."""
 
 
 def job_dir(settings: Settings, job_id: str) -> Path:
@@ -437,6 +437,7 @@ class RenderService:
         self._previous = None
         self._reniced: set[int] = set()
         self._node: str | None = None
+        self._rescanned = 0.0
         self._encoder = concurrent.futures.ThreadPoolExecutor(
             1, thread_name_prefix="tilerender-encode"
         )
@@ -515,6 +516,7 @@ class RenderService:
             while not self._stop.is_set():
                 self._run_calls()
                 self._expire_sessions()
+                self._place_new_nodes()
                 try:
                     worked = self._turn_once()
                 except Exception as exc:  # a bug or a full disk: fail the work, keep serving
@@ -611,6 +613,22 @@ class RenderService:
         self._previous = worker
         self._refresh_cluster_info()
         return True
+
+    def _place_new_nodes(self) -> None:
+        """Every ``NODE_RESCAN_SECONDS``, start tracers on Ray nodes that joined the cluster
+        (one tracer per node, the default; a fixed ``tracers`` count is left as it is)."""
+        now = time.monotonic()
+        if now - self._rescanned < NODE_RESCAN_SECONDS:
+            return
+        self._rescanned = now
+        try:
+            started = self.coordinator.place_new_nodes()
+        except Exception as exc:  # the GCS briefly unreachable: try again next time
+            log.warning("looking for new Ray nodes failed: %s", exc)
+            return
+        if started:
+            log.info("new Ray nodes: started tracers %s", ", ".join(started))
+            self._refresh_cluster_info()
 
     def _refresh_cluster_info(self) -> None:
         try:

@@ -41,7 +41,8 @@ Failures:
 - **Stale results.** Late answers (the losing copy of a duplicate, anything of a finished
   frame) are collected and discarded; the assembler refuses results of another frame, version
   or range.
-- Tracers may join (``add_tracers``) or leave (``remove_tracer``) between frames.
+- Tracers may join (``add_tracers``; ``place_new_nodes`` starts one on each Ray node that
+  joined since, in the default one-per-node mode) or leave (``remove_tracer``) between frames.
 
 The coordinator is not thread-safe: one caller drives it.
 """
@@ -171,6 +172,8 @@ class _Slot:
     node: str | None = None
     incarnation: str | None = None
     warm: dict | None = None
+    home: str | None = None
+    """The Ray node the tracer was placed on in one-tracer-per-node mode (None: spread)."""
 
 
 @dataclass(eq=False)
@@ -286,13 +289,15 @@ class Coordinator:
         self._last_done = 0.0
         if not ray.is_initialized():
             connect()
+        self._per_node = tracers is None
+        self._cpus_per_tracer = cpus_per_tracer
         placements = self._placements(tracers, cpus_per_tracer)
         self._default_cpus = placements[-1][0]
         delays = list(delays or [])
         try:
             slots = [
-                self._start(cpus, options, delays[k] if k < len(delays) else 0.0)
-                for k, (cpus, options) in enumerate(placements)
+                self._start(cpus, options, delays[k] if k < len(delays) else 0.0, home)
+                for k, (cpus, options, home) in enumerate(placements)
             ]
             self._wait_started(slots, self.start_timeout, require_all=False)
         except BaseException:
@@ -307,28 +312,53 @@ class Coordinator:
     # Tracers ---------------------------------------------------------------------------------
 
     @staticmethod
-    def _placements(tracers: int | None, cpus: float | None) -> list[tuple[float, dict]]:
-        """(CPUs, actor options) of each tracer to start."""
-        nodes = [n for n in ray.nodes() if n.get("Alive") and n["Resources"].get("CPU", 0) > 0]
+    def _cpu_nodes() -> list[dict]:
+        return [n for n in ray.nodes() if n.get("Alive") and n["Resources"].get("CPU", 0) > 0]
+
+    @staticmethod
+    def _node_placement(node: dict, cpus: float | None) -> tuple[float, dict, str]:
+        """One tracer on ``node`` using ``cpus`` of its CPUs (default all)."""
+        total, home = node["Resources"]["CPU"], node["NodeID"]
+        strategy = NodeAffinitySchedulingStrategy(home, soft=True)
+        return min(cpus, total) if cpus else total, {"scheduling_strategy": strategy}, home
+
+    def _placements(
+        self, tracers: int | None, cpus: float | None
+    ) -> list[tuple[float, dict, str | None]]:
+        """(CPUs, actor options, home node) of each tracer to start."""
+        nodes = self._cpu_nodes()
         if not nodes:
             raise ClusterError("the Ray cluster has no node with CPUs")
         if tracers is None:
-            return [
-                (
-                    min(cpus, n["Resources"]["CPU"]) if cpus else n["Resources"]["CPU"],
-                    {"scheduling_strategy": NodeAffinitySchedulingStrategy(n["NodeID"], soft=True)},
-                )
-                for n in nodes
-            ]
+            return [self._node_placement(n, cpus) for n in nodes]
         if cpus is None:
             total = sum(n["Resources"]["CPU"] for n in nodes)
             cpus = max(0.01, math.floor(100 * total / tracers) / 100)
-        return [(cpus, {"scheduling_strategy": "SPREAD"})] * tracers
+        return [(cpus, {"scheduling_strategy": "SPREAD"}, None)] * tracers
 
-    def _start(self, cpus: float, options: dict, delay: float = 0.0) -> _Slot:
+    def place_new_nodes(self) -> list[str]:
+        """In one-tracer-per-node mode (``tracers`` not given), start a tracer on every live
+        Ray node with CPUs that has none yet (a node that joined after the start, or came
+        back); they get work from the next frame once ready. Returns their ids (none in the
+        other mode)."""
+        if not self._per_node:
+            return []
+        homes = {s.home for s in self._slots if s.state in ("starting", "ready", "recovering")}
+        started = []
+        for node in self._cpu_nodes():
+            if node["NodeID"] not in homes:
+                cpus, options, home = self._node_placement(node, self._cpus_per_tracer)
+                slot = self._start(cpus, options, home=home)
+                log.info("tracer %s placed on new node %s", slot.id, home)
+                started.append(slot.id)
+        return started
+
+    def _start(
+        self, cpus: float, options: dict, delay: float = 0.0, home: str | None = None
+    ) -> _Slot:
         tracer_id = f"t{next(self._numbers)}"
         handle = remote_tracer(cpus, **options).remote(tracer_id, cpus, delay)
-        slot = _Slot(tracer_id, handle, cpus)
+        slot = _Slot(tracer_id, handle, cpus, home=home)
         self._slots.append(slot)
         self._send_probe(slot, time.perf_counter())
         return slot

@@ -482,3 +482,44 @@ def test_a_node_removed_mid_animation_does_not_stop_the_job():
             coordinator.close()
         disconnect()
         cluster.shutdown()
+
+
+def test_a_node_that_joins_gets_a_tracer_from_the_next_frame():
+    """One tracer per node (the default) on a head without CPUs and one worker; a second
+    worker joins, ``place_new_nodes`` starts a tracer there (once: a second call finds no new
+    node), and the next frames are shared by both, equal to render_image."""
+    from ray.cluster_utils import Cluster
+
+    for other in _coordinators.values():
+        other.close()
+    _coordinators.clear()
+    disconnect()
+    state = animated(4)
+    expected = animation_references(state, range(4))
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0})
+    coordinator = None
+    try:
+        first = cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        connect(cluster.address)
+        coordinator = Coordinator(SceneGraph(state), straggler_floor=30)
+        assert coordinator.place_new_nodes() == []
+        frames = list(coordinator.render_animation(frames=[0]))
+        assert {r.tracer for r in frames[0].ranges} == {"t0"}
+        second = cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        assert coordinator.place_new_nodes() == ["t1"]
+        assert coordinator.place_new_nodes() == []  # it is starting there already
+        deadline = time.monotonic() + 120
+        while "t1" not in coordinator.ready and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert coordinator.info("t1").node == second.node_id != first.node_id
+        frames += list(coordinator.render_animation(frames=[1, 2, 3]))
+        assert {r.tracer for r in frames[-1].ranges} == {"t0", "t1"}
+        for frame in frames:
+            assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
+    finally:
+        if coordinator is not None:
+            coordinator.close()
+        disconnect()
+        cluster.shutdown()
