@@ -32,8 +32,11 @@ def direction(theta_deg: float) -> tuple[float, float, float]:
 
 
 def row(material):
+    """``(kind, albedo, param)``: ``param`` the material's parameter row split as the kernels
+    pass it, ``(scalar tuple, whole row)``."""
     kind, albedo, _, _, param = material_row(material)
-    return kind, tuple(float(a) for a in albedo), tuple(float(p) for p in param)
+    scalars = tuple(float(p) for p in param[: bsdf.PARAMS])
+    return kind, tuple(float(a) for a in albedo), (scalars, param)
 
 
 def _sample_many(kind, albedo, param, wo, front, count, seed):
@@ -50,7 +53,7 @@ def _sample_with(kind, albedo, param, wo, front, u):
     deltas = np.empty(count, np.bool_)
     for i in range(count):
         wi, weight, pdf, delta = bsdf.bsdf_sample(
-            kind, albedo, param, N, wo, front, True, u[i, 0], u[i, 1], u[i, 2]
+            kind, albedo, param[0], param[1], N, wo, front, True, u[i, 0], u[i, 1], u[i, 2]
         )
         dirs[i, 0] = wi[0]
         dirs[i, 1] = wi[1]
@@ -69,7 +72,7 @@ def _eval_many(kind, albedo, param, wo, dirs):
     pdf = np.empty(dirs.shape[0])
     for i in range(dirs.shape[0]):
         wi = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
-        fi, p = bsdf.bsdf_eval(kind, albedo, param, N, wo, wi)
+        fi, p = bsdf.bsdf_eval(kind, albedo, param[0], param[1], N, wo, wi)
         f[i, 0] = fi[0]
         f[i, 1] = fi[1]
         f[i, 2] = fi[2]
@@ -177,8 +180,8 @@ def test_reciprocity(material):
         a[2], b[2] = abs(a[2]), abs(b[2])
         wo = tuple(a / np.linalg.norm(a))
         wi = tuple(b / np.linalg.norm(b))
-        f1, _ = bsdf.bsdf_eval(kind, albedo, param, N, wo, wi)
-        f2, _ = bsdf.bsdf_eval(kind, albedo, param, N, wi, wo)
+        f1, _ = bsdf.bsdf_eval(kind, albedo, *param, N, wo, wi)
+        f2, _ = bsdf.bsdf_eval(kind, albedo, *param, N, wi, wo)
         np.testing.assert_allclose(np.array(f1) / wi[2], np.array(f2) / wo[2], rtol=1e-9)
 
 
@@ -276,13 +279,13 @@ def test_mirror_and_smooth_conductor_are_delta():
         fmt.ConductorMaterial(type="conductor", reflectance=(0.9, 0.8, 0.7)),
     ):
         kind, albedo, param = row(material)
-        assert bsdf.bsdf_is_delta(kind, param)
+        assert bsdf.bsdf_is_delta(kind, param[0])
         wi, weight, pdf, delta = bsdf.bsdf_sample(
-            kind, albedo, param, N, wo, True, True, 0.5, 0.5, 0.5
+            kind, albedo, *param, N, wo, True, True, 0.5, 0.5, 0.5
         )
         assert delta and pdf == 1.0
         np.testing.assert_allclose(wi, (-wo[0], -wo[1], wo[2]), atol=1e-15)
-        f, p = bsdf.bsdf_eval(kind, albedo, param, N, wo, wi)
+        f, p = bsdf.bsdf_eval(kind, albedo, *param, N, wo, wi)
         assert f == (0.0, 0.0, 0.0) and p == 0.0
         if material.type == "mirror":
             assert weight == (0.9, 0.8, 0.7)
