@@ -58,17 +58,6 @@ def conductor_index_from_reflectance(r: float) -> tuple[float, float]:
     return eta, math.sqrt(max(0.0, k2))
 
 
-def fresnel_diffuse_reflectance(eta: float, steps: int = 4096) -> float:
-    """Cosine-weighted hemispherical average of the dielectric Fresnel reflectance seen from the
-    side where the relative index is ``eta``: ``2 * integral_0^1 F(mu, eta) mu dmu`` (midpoint
-    rule)."""
-    from tracer.fresnel import fr_dielectric
-
-    mu = (np.arange(steps) + 0.5) / steps
-    f = np.array([fr_dielectric.py_func(float(m), eta) for m in mu])
-    return float(2.0 * np.sum(f * mu) / steps)
-
-
 def gauss_legendre(n: int, lo: float = 0.0, hi: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Nodes and weights of the ``n``-point Gauss-Legendre rule on ``[lo, hi]``."""
     x, w = np.polynomial.legendre.leggauss(n)
