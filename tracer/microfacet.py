@@ -1,4 +1,5 @@
-"""The isotropic GGX (Trowbridge-Reitz) microfacet distribution and its visible normals.
+"""The isotropic GGX (Trowbridge-Reitz) microfacet distribution, its visible normals, and the
+directional albedos of a rough dielectric interface (the plastic coat's tables).
 
 Directions are in the local shading frame (the macro normal is +z), unit length. ``alpha`` is
 GGX's roughness parameter (the scene format's ``roughness`` squared). Masking-shadowing is
