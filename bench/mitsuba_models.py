@@ -7,9 +7,13 @@ albedo itself is noisy:
 
 - rough conductor: ours (GGX, height-correlated Smith masking) against Mitsuba's
   ``roughconductor`` (GGX, separable masking), same alpha and complex index;
-- plastic base (the diffuse part under the coat, where the models differ): ours
-  ``R / (1 - Fdr) (1 - F(cos_i)) (1 - F(cos_o)) / (pi eta^2)`` (docs/materials.md) against the
-  diffuse component of Mitsuba's ``plastic`` (roughness 0) or ``roughplastic``.
+- plastic base (the diffuse part under the coat): ours
+  ``R / (1 - Fdr) T(cos_i) T(cos_o) / (pi eta^2)`` with the rough coat's tables
+  (docs/materials.md) against the diffuse component of Mitsuba's ``plastic`` (roughness 0) or
+  ``roughplastic``; and ours again with ``Fdr`` summed by Mitsuba's rule (the mean of
+  ``2 R(mu) mu`` over 64 equally spaced ``mu``, both ends included) instead of our quadrature,
+  which isolates the part of the difference that rule makes;
+- plastic, whole (coat and base), rough only: ours against Mitsuba's ``roughplastic``.
 
 Writes ``bench/results/mitsuba_models.json``. Needs Mitsuba (``scalar_rgb``, no libLLVM).
 """
@@ -22,7 +26,7 @@ import numpy as np
 from common import console, machine_info, package_version, print_machine, print_table, write_results
 
 ROUGHNESS = (0.06, 0.14, 0.2, 0.26, 0.35, 0.45, 0.7, 1.0)
-PLASTIC_ROUGHNESS = (0.0, 0.05, 0.1, 0.2, 0.3, 0.5)
+PLASTIC_ROUGHNESS = (0.0, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0)
 ANGLES = (0.0, 45.0, 70.0, 80.0, 85.0)
 METAL = (0.75, 0.75, 0.78)
 """The colour of the veach-mis plates."""
@@ -33,7 +37,7 @@ PLASTIC_IOR = 1.5
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description="Directional albedo ratios Mitsuba / tilerender of the rough conductor and "
-        "the plastic base.",
+        "the plastic.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("--samples", type=int, default=20000, help="directions per estimate")
@@ -69,8 +73,9 @@ def conductor_rows(mi, rng, samples: int) -> list[dict]:
     rows = []
     for roughness in ROUGHNESS:
         material = fmt.ConductorMaterial(type="conductor", reflectance=METAL, roughness=roughness)
-        kind, albedo, _, _, param = material_row(material)
+        kind, albedo, _, _, row = material_row(material)
         albedo = tuple(float(c) for c in albedo)
+        param = tuple(float(p) for p in row[: ours.PARAMS])
         theirs = mi.load_dict(
             {
                 "type": "roughconductor",
@@ -86,7 +91,7 @@ def conductor_rows(mi, rng, samples: int) -> list[dict]:
             mine = other = 0.0
             for u0, u1, u2 in u:
                 wi, weight, pdf, _ = ours.bsdf_sample(
-                    kind, tuple(albedo), param, (0.0, 0.0, 1.0), wo, True, True, u0, u1, u2
+                    kind, albedo, param, row, (0.0, 0.0, 1.0), wo, True, True, u0, u1, u2
                 )
                 if pdf <= 0.0:
                     continue
@@ -103,59 +108,95 @@ def conductor_rows(mi, rng, samples: int) -> list[dict]:
     return rows
 
 
-def plastic_rows(mi, rng, samples: int) -> list[dict]:
-    """Albedo of our plastic's base and Mitsuba's / ours, per roughness and view angle."""
-    from tracer.fresnel import fr_dielectric
-    from tracer.materials import fresnel_diffuse_reflectance
+def mitsuba_rule_fdr(alpha: float, ior: float) -> float:
+    """The coat's internal diffuse reflectance summed as Mitsuba's ``roughplastic`` does:
+    ``2 mean(R(mu) mu)`` over ``mu = max(1e-6, linspace(0, 1, 64))``, with our ``R``."""
+    from tracer.materials import COAT_QUADRATURE, gauss_legendre
+    from tracer.microfacet import ggx_dielectric_albedo
 
-    fdr = fresnel_diffuse_reflectance(1.0 / PLASTIC_IOR)
-    fresnel = fr_dielectric.py_func
+    nodes, weights = gauss_legendre(COAT_QUADRATURE)
+    mu = np.maximum(1e-6, np.linspace(0.0, 1.0, 64))
+    r = np.array([ggx_dielectric_albedo(m, alpha, 1.0 / ior, nodes, weights)[0] for m in mu])
+    return float(2.0 * np.mean(r * mu))
+
+
+def plastic_rows(mi, rng, samples: int) -> list[dict]:
+    """Albedo of our plastic (its base; the whole BSDF when rough) and Mitsuba's / ours, per
+    roughness and view angle."""
+    from tracer import bsdf as ours
+    from tracer import scene_format as fmt
+    from tracer.materials import PLASTIC_MIN_ALPHA, material_row
+
     rows = []
     for roughness in PLASTIC_ROUGHNESS:
+        material = fmt.PlasticMaterial(
+            type="plastic", reflectance=(BASE,) * 3, ior=PLASTIC_IOR, roughness=roughness
+        )
+        kind, albedo, _, _, row = material_row(material)
+        albedo = tuple(float(c) for c in albedo)
+        param = tuple(float(p) for p in row[: ours.PARAMS])
+        alpha = param[ours.ALPHA]
+        smooth = roughness * roughness <= PLASTIC_MIN_ALPHA
         spec = {
             "int_ior": PLASTIC_IOR,
             "ext_ior": 1.0,
             "diffuse_reflectance": {"type": "rgb", "value": [BASE] * 3},
         }
-        if roughness == 0.0:
+        if smooth:
             theirs = mi.load_dict({"type": "plastic", **spec})
         else:
-            alpha = roughness * roughness
             theirs = mi.load_dict(
                 {"type": "roughplastic", "distribution": "ggx", "alpha": alpha, **spec}
             )
+        base = BASE / (math.pi * PLASTIC_IOR**2)
+        rule_scale = (1.0 - param[ours.FDR_INT]) / (1.0 - mitsuba_rule_fdr(alpha, PLASTIC_IOR))
         for angle in ANGLES:
             wo = local_view(angle)
-            u = rng.random((samples, 2))
+            t_o = ours.coat_transmittance(param, row, wo[2])
+            u = rng.random((samples, 3))
             mine = other = 0.0
-            for u1, u2 in u:  # cosine-weighted directions: f cos / pdf = pi f
+            for _, u1, u2 in u:  # cosine-weighted directions: f cos / pdf = pi f
                 r, phi = math.sqrt(u1), 2.0 * math.pi * u2
                 wi = (r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1)))
                 pdf = wi[2] / math.pi
-                f = BASE / (1.0 - fdr) / (math.pi * PLASTIC_IOR**2)
-                f *= (1.0 - fresnel(wo[2], PLASTIC_IOR)) * (1.0 - fresnel(wi[2], PLASTIC_IOR))
-                mine += math.pi * f
+                t_i = ours.coat_transmittance(param, row, wi[2])
+                mine += base * t_i * t_o / (1.0 - param[ours.FDR_INT]) * math.pi
                 other += mitsuba_eval(mi, theirs, wo, wi, component=1) / pdf
-            rows.append(
-                {
-                    "roughness": roughness,
-                    "theta_o": angle,
-                    "albedo_ours": mine / samples,
-                    "ratio": other / mine,
-                }
-            )
+            result = {
+                "roughness": roughness,
+                "theta_o": angle,
+                "albedo_ours": mine / samples,
+                "ratio": other / mine,
+                "ratio_mitsuba_rule": other / (mine * rule_scale),
+            }
+            if not smooth:
+                whole_mine = whole_other = 0.0
+                for u0, u1, u2 in u:
+                    wi, weight, pdf, _ = ours.bsdf_sample(
+                        kind, albedo, param, row, (0.0, 0.0, 1.0), wo, True, True, u0, u1, u2
+                    )
+                    if pdf <= 0.0:
+                        continue
+                    whole_mine += weight[0]
+                    whole_other += mitsuba_eval(mi, theirs, wo, wi) / pdf
+                result["albedo_whole_ours"] = whole_mine / samples
+                result["ratio_whole"] = whole_other / whole_mine
+            rows.append(result)
     return rows
 
 
-def table(title: str, rows: list[dict], caption: str) -> None:
+def table(
+    title: str, rows: list[dict], caption: str, ratio: str = "ratio", albedo: str = "albedo_ours"
+) -> None:
     by_roughness: dict[float, dict[float, dict]] = {}
     for row in rows:
-        by_roughness.setdefault(row["roughness"], {})[row["theta_o"]] = row
+        if ratio in row:
+            by_roughness.setdefault(row["roughness"], {})[row["theta_o"]] = row
     print_table(
         title,
         ["roughness", *(f"{a:g} deg" for a in ANGLES)],
         [
-            [f"{r:g}", *(f"{v[a]['ratio']:.4f} ({v[a]['albedo_ours']:.3f})" for a in ANGLES)]
+            [f"{r:g}", *(f"{v[a][ratio]:.4f} ({v[a][albedo]:.3f})" for a in ANGLES)]
             for r, v in by_roughness.items()
         ],
         caption=caption,
@@ -183,6 +224,19 @@ def main(argv: list[str] | None = None) -> int:
         f"Plastic base (R = {BASE}, ior {PLASTIC_IOR}): ratio Mitsuba / ours (our albedo)",
         plastic,
         "roughness 0: Mitsuba's plastic; otherwise roughplastic with alpha = roughness^2",
+    )
+    table(
+        "Plastic base, ours with Fdr summed by Mitsuba's rule: ratio Mitsuba / ours",
+        plastic,
+        "what remains once Mitsuba's sum for the internal reflectance is used: masking",
+        ratio="ratio_mitsuba_rule",
+    )
+    table(
+        "Rough plastic, whole BSDF (coat and base): ratio Mitsuba / ours (our albedo)",
+        plastic,
+        "our sampler's directions; Mitsuba's roughplastic evaluated with all components",
+        ratio="ratio_whole",
+        albedo="albedo_whole_ours",
     )
     machine["mitsuba"] = package_version("mitsuba")
     write_results(

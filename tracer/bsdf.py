@@ -12,10 +12,12 @@ direction: ``bsdf_eval`` returns zero for them (a light sample can never hit tha
 weight 1 (no light sample could have found it). pdfs of delta samples are discrete
 probabilities (the lobe's selection probability), never solid-angle densities.
 
-Per-material parameters are a row of ``param`` (``PARAMS`` float64 columns, see
-``tracer.materials`` for how scene materials fill them); ``albedo`` is the base colour, with
-the texture applied: the reflectance of diffuse, mirror and plastic surfaces, and for a
-conductor a tint multiplying its Fresnel term (white without a texture).
+Per-material parameters are a row of ``PARAM_COLUMNS`` float64 values (see
+``tracer.materials`` for how scene materials fill them): kernels pass its first ``PARAMS`` as
+the tuple ``param`` and the whole row as ``row``, from which a plastic reads its coat's table.
+``albedo`` is the base colour, with the texture applied: the reflectance of diffuse, mirror and
+plastic surfaces, and for a conductor a tint multiplying its Fresnel term (white without a
+texture).
 Formulas and references: docs/materials.md.
 """
 
@@ -47,12 +49,14 @@ MATERIAL_KINDS = {
 }
 
 PARAMS = 8
-"""Columns of the parameter table. Layout per kind (unused columns are 0):
+"""Scalar columns of the parameter table (the ``param`` tuple). Layout per kind (unused
+columns are 0):
 
 - dielectric: ``IOR`` the index inside over outside, ``SIGMA`` (3) the absorption coefficient;
 - conductor: ``ALPHA`` (GGX), ``ETA`` (3) and ``K`` (3), the complex index per channel;
-- plastic: ``ALPHA``, ``IOR`` of the coat, ``FDR_INT`` its internal diffuse Fresnel
-  reflectance, ``SPECULAR_WEIGHT`` the specular lobe's share of samples before Fresnel.
+- plastic: ``ALPHA``, ``IOR`` of the coat, ``FDR_INT`` the rough coat's internal diffuse
+  reflectance, ``SPECULAR_WEIGHT`` the specular lobe's share of samples before the coat's
+  reflectance.
 """
 ALPHA = 0
 IOR = 1
@@ -61,6 +65,13 @@ ETA = 2
 K = 5
 FDR_INT = 2
 SPECULAR_WEIGHT = 3
+
+COAT_NODES = 64
+"""Entries of a plastic's coat table: at ``cos = j / (COAT_NODES - 1)``, the rough coat's
+transmittance minus the smooth interface's ``1 - F(cos)``, interpolated linearly between."""
+COAT_TABLE = PARAMS
+"""First column of the coat table in a parameter row (zeros for other kinds)."""
+PARAM_COLUMNS = PARAMS + COAT_NODES
 
 SMOOTH_ALPHA = 1e-3
 """Below this GGX alpha a conductor is treated as perfectly smooth (pbrt-v4's
@@ -134,20 +145,32 @@ def conductor_eval_local(param, wo, wi):
 
 
 @jit
-def plastic_specular_probability(albedo, param, cos_o):
-    """Share of plastic samples that go to the specular lobe for this ``wo`` (Mitsuba's
-    ``roughplastic``: Fresnel reflectance times the lobes' mean-albedo weight)."""
-    f_o = fr_dielectric(cos_o, param[IOR])
-    w = param[SPECULAR_WEIGHT]
-    p_spec = f_o * w
-    p_diff = (1.0 - f_o) * (1.0 - w)
-    return p_spec / (p_spec + p_diff)
+def coat_transmittance(param, row, cos_theta):
+    """Share of light arriving at ``cos_theta`` that the plastic's rough coat lets through
+    (single scattering, in either direction): ``1 - F(cos)`` of the smooth interface plus the
+    coat table's correction, interpolated linearly."""
+    x = cos_theta * (COAT_NODES - 1)
+    j = min(int(x), COAT_NODES - 2)
+    w = x - j
+    correction = (1.0 - w) * row[COAT_TABLE + j] + w * row[COAT_TABLE + j + 1]
+    return min(1.0, max(0.0, 1.0 - fr_dielectric(cos_theta, param[IOR]) + correction))
 
 
 @jit
-def plastic_eval_local(albedo, param, wo, wi):
+def plastic_specular_probability(param, t_o):
+    """Share of plastic samples that go to the specular lobe when the coat transmits ``t_o``
+    toward ``wo`` (Mitsuba's ``roughplastic``: the coat's reflectance ``1 - t_o`` times the
+    lobes' mean-albedo weight)."""
+    w = param[SPECULAR_WEIGHT]
+    p_spec = (1.0 - t_o) * w
+    total = p_spec + t_o * (1.0 - w)
+    return p_spec / total if total > 0.0 else 1.0
+
+
+@jit
+def plastic_eval_local(albedo, param, row, wo, wi):
     """Coated diffuse f * cos and pdf, local frame: a GGX dielectric specular lobe plus the
-    base seen through the coat (Mitsuba's ``plastic`` diffuse term)."""
+    base seen through the rough coat (Mitsuba's ``roughplastic``)."""
     if wo[2] <= 0.0 or wi[2] <= 0.0:
         return ZERO3, 0.0
     alpha = param[ALPHA]
@@ -155,21 +178,22 @@ def plastic_eval_local(albedo, param, wo, wi):
     h = half_vector(wo, wi)
     d = ggx_d(h, alpha)
     spec = fr_dielectric(dot(wo, h), eta) * d * ggx_g(wo, wi, alpha) / (4.0 * wo[2])
-    t_o = 1.0 - fr_dielectric(wo[2], eta)
-    t_i = 1.0 - fr_dielectric(wi[2], eta)
+    t_o = coat_transmittance(param, row, wo[2])
+    t_i = coat_transmittance(param, row, wi[2])
     k = t_i * t_o * wi[2] * INV_PI / ((1.0 - param[FDR_INT]) * eta * eta)
     f = (spec + albedo[0] * k, spec + albedo[1] * k, spec + albedo[2] * k)
-    p_spec = plastic_specular_probability(albedo, param, wo[2])
+    p_spec = plastic_specular_probability(param, t_o)
     pdf = p_spec * ggx_g1(wo, alpha) * d / (4.0 * wo[2]) + (1.0 - p_spec) * wi[2] * INV_PI
     return f, pdf
 
 
 @jit
-def bsdf_eval(kind, albedo, param, n, wo, wi):
+def bsdf_eval(kind, albedo, param, row, n, wo, wi):
     """``(f * |cos(n, wi)|, pdf)`` of the non-delta lobes for light arriving from ``wi``.
 
     The pdf is the solid-angle density with which ``bsdf_sample`` picks ``wi``; delta-only
-    materials return zeros.
+    materials return zeros. ``param`` is the material's scalar parameters (a tuple), ``row``
+    its whole parameter row (an array).
     """
     if kind == DIFFUSE:
         return diffuse_eval(albedo, n, wi), diffuse_pdf(n, wi)
@@ -183,12 +207,12 @@ def bsdf_eval(kind, albedo, param, n, wo, wi):
         s, t = coordinate_system(n)
         wo_l = (dot(s, wo), dot(t, wo), dot(n, wo))
         wi_l = (dot(s, wi), dot(t, wi), dot(n, wi))
-        return plastic_eval_local(albedo, param, wo_l, wi_l)
+        return plastic_eval_local(albedo, param, row, wo_l, wi_l)
     return ZERO3, 0.0
 
 
 @jit
-def bsdf_sample(kind, albedo, param, n, wo, front, refraction, u0, u1, u2):
+def bsdf_sample(kind, albedo, param, row, n, wo, front, refraction, u0, u1, u2):
     """Sample an incident direction: ``(wi, weight, pdf, delta)``.
 
     ``weight`` is f * |cos| / pdf (the throughput factor), ``pdf`` the solid-angle density
@@ -245,14 +269,15 @@ def bsdf_sample(kind, albedo, param, n, wo, front, refraction, u0, u1, u2):
     if kind == PLASTIC:
         if wo_l[2] <= 0.0:
             return wo, ZERO3, 0.0, False
-        if u0 < plastic_specular_probability(albedo, param, wo_l[2]):
+        t_o = coat_transmittance(param, row, wo_l[2])
+        if u0 < plastic_specular_probability(param, t_o):
             m = ggx_sample_visible_normal(wo_l, param[ALPHA], u1, u2)
             wi_l = reflect_local(wo_l, m)
         else:
             wi_l = square_to_cosine_hemisphere(u1, u2)
         if wi_l[2] <= 0.0:
             return wo, ZERO3, 0.0, False
-        f, pdf = plastic_eval_local(albedo, param, wo_l, wi_l)
+        f, pdf = plastic_eval_local(albedo, param, row, wo_l, wi_l)
         if not pdf > 0.0:
             return wo, ZERO3, 0.0, False
         return to_world(wi_l, s, t, n), (f[0] / pdf, f[1] / pdf, f[2] / pdf), pdf, False

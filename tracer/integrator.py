@@ -82,7 +82,8 @@ NO_PARAM = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 @jit_inline
 def material_param(mat_param, mat):
-    """Row ``mat`` of the parameter table as a tuple (``bsdf.PARAMS`` values)."""
+    """The scalar parameters of row ``mat`` of the parameter table as a tuple (its first
+    ``bsdf.PARAMS`` values)."""
     return (mat_param[mat, 0], mat_param[mat, 1], mat_param[mat, 2], mat_param[mat, 3],
             mat_param[mat, 4], mat_param[mat, 5], mat_param[mat, 6], mat_param[mat, 7])  # fmt: skip
 
@@ -280,7 +281,8 @@ def path_kernel(materials: bool, lights: bool):
                             p_bsdf = 0.0
                             if ok:
                                 if materials and kind != DIFFUSE:
-                                    f, p_bsdf = bsdf_eval(kind, albedo, param, n, wo, wi)
+                                    f, p_bsdf = bsdf_eval(kind, albedo, param, s.mat_param[mat],
+                                                          n, wo, wi)  # fmt: skip
                                 else:
                                     f = diffuse_eval(albedo, n, wi)
                                     if mis and not delta_l:
@@ -317,7 +319,8 @@ def path_kernel(materials: bool, lights: bool):
                         u1, u2 = uniform2(key, dim + 2)
                         if materials and kind != DIFFUSE:
                             u0 = uniform(key, dim + 4) if bsdf_needs_lobe_choice(kind) else 0.0
-                            wi, weight, pdf, delta_prev = bsdf_sample(kind, albedo, param, n, wo,
+                            wi, weight, pdf, delta_prev = bsdf_sample(kind, albedo, param,
+                                                                      s.mat_param[mat], n, wo,
                                                                       front, refraction, u0, u1,
                                                                       u2)  # fmt: skip
                         else:

@@ -1,12 +1,13 @@
 """Scene-format materials -> the columns of the material table kernels read.
 
 One row per material: its kind (``tracer.bsdf`` constants), reflectance colour, emitted radiance,
-sidedness and a row of ``bsdf.PARAMS`` float64 parameters. The conversions that are not plain
-copies are here: roughness to GGX alpha, a conductor's reflectance to a complex index of
-refraction, a plastic coat's internal diffuse Fresnel reflectance. docs/materials.md states
-every formula.
+sidedness and a row of ``bsdf.PARAM_COLUMNS`` float64 parameters. The conversions that are not
+plain copies are here: roughness to GGX alpha, a conductor's reflectance to a complex index of
+refraction, a plastic coat's transmittance table and internal diffuse reflectance (quadratures
+of the rough interface). docs/materials.md states every formula.
 """
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -20,11 +21,16 @@ MAX_CONDUCTOR_REFLECTANCE = 0.9999
 """Normal-incidence reflectance is clamped below 1, where the fitted index diverges."""
 PLASTIC_MIN_ALPHA = 1e-3
 """A plastic coat's GGX alpha is at least this (its specular lobe is never a delta)."""
+COAT_QUADRATURE = 64
+"""Gauss-Legendre nodes per axis of the product rule over a coat's visible normals."""
+COAT_CRITICAL_QUADRATURE = 32
+"""Gauss-Legendre nodes in cos(theta) on each side of the coat's critical angle, for its
+internal diffuse reflectance."""
 
 
 class MaterialTable(NamedTuple):
     """Per material, in the state's order: ``kind`` int32 (K,), ``albedo`` and ``emission``
-    float32 (K, 3), ``two_sided`` bool (K,), ``param`` float64 (K, ``bsdf.PARAMS``).
+    float32 (K, 3), ``two_sided`` bool (K,), ``param`` float64 (K, ``bsdf.PARAM_COLUMNS``).
 
     ``albedo`` is the base colour a texture multiplies: the reflectance of diffuse, mirror and
     plastic materials; white for conductors (their colour is in ``eta`` and ``k``, and a
@@ -52,20 +58,47 @@ def conductor_index_from_reflectance(r: float) -> tuple[float, float]:
     return eta, math.sqrt(max(0.0, k2))
 
 
-def fresnel_diffuse_reflectance(eta: float, steps: int = 4096) -> float:
-    """Cosine-weighted hemispherical average of the dielectric Fresnel reflectance seen from the
-    side where the relative index is ``eta``: ``2 * integral_0^1 F(mu, eta) mu dmu`` (midpoint
-    rule)."""
-    from tracer.fresnel import fr_dielectric
+def gauss_legendre(n: int, lo: float = 0.0, hi: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and weights of the ``n``-point Gauss-Legendre rule on ``[lo, hi]``."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    half = 0.5 * (hi - lo)
+    return lo + half * (x + 1.0), half * w
 
-    mu = (np.arange(steps) + 0.5) / steps
-    f = np.array([fr_dielectric.py_func(float(m), eta) for m in mu])
-    return float(2.0 * np.sum(f * mu) / steps)
+
+@functools.lru_cache(maxsize=256)
+def coat_tables(alpha: float, ior: float) -> tuple[tuple[float, ...], float]:
+    """A rough plastic coat's tables, as Mitsuba 3's ``roughplastic`` precomputes them (with
+    our height-correlated masking and accurate quadratures).
+
+    Returns the transmittance correction at ``cos = j / (bsdf.COAT_NODES - 1)``: the coat's
+    single-scattering transmittance ``T(cos)`` from outside (``microfacet.
+    ggx_dielectric_albedo``; the first node at cos 1e-6) minus the smooth interface's ``1 -
+    F(cos)``; and its internal diffuse reflectance ``2 * integral_0^1 R(mu, 1/ior) mu dmu``,
+    ``R`` the coat's directional reflectance from inside, by Gauss-Legendre on each side of
+    the critical cosine (where total internal reflection begins).
+    """
+    from tracer.fresnel import fr_dielectric
+    from tracer.microfacet import ggx_dielectric_albedo
+
+    nodes, weights = gauss_legendre(COAT_QUADRATURE)
+    mu = np.linspace(0.0, 1.0, bsdf.COAT_NODES)
+    correction = tuple(
+        ggx_dielectric_albedo(max(m, 1e-6), alpha, ior, nodes, weights)[1]
+        - (1.0 - fr_dielectric.py_func(float(m), ior))
+        for m in mu
+    )
+    critical = math.sqrt(1.0 - 1.0 / (ior * ior))
+    fdr = 0.0
+    for lo, hi in ((0.0, critical), (critical, 1.0)):
+        for m, w in zip(*gauss_legendre(COAT_CRITICAL_QUADRATURE, lo, hi), strict=True):
+            r = ggx_dielectric_albedo(m, alpha, 1.0 / ior, nodes, weights)[0]
+            fdr += 2.0 * w * r * m
+    return correction, fdr
 
 
 def material_row(m: fmt.Material) -> tuple[int, tuple, tuple, bool, np.ndarray]:
     """``(kind, albedo, emission, two_sided, param)`` of one material."""
-    param = np.zeros(bsdf.PARAMS)
+    param = np.zeros(bsdf.PARAM_COLUMNS)
     kind = bsdf.MATERIAL_KINDS[m.type]
     if isinstance(m, fmt.DielectricMaterial):
         param[bsdf.IOR] = m.ior
@@ -82,9 +115,12 @@ def material_row(m: fmt.Material) -> tuple[int, tuple, tuple, bool, np.ndarray]:
         param[bsdf.K : bsdf.K + 3] = k
         return kind, (1.0, 1.0, 1.0), m.emission, m.two_sided, param
     if isinstance(m, fmt.PlasticMaterial):
-        param[bsdf.ALPHA] = max(PLASTIC_MIN_ALPHA, roughness_to_alpha(m.roughness))
+        alpha = max(PLASTIC_MIN_ALPHA, roughness_to_alpha(m.roughness))
+        correction, fdr = coat_tables(alpha, float(m.ior))
+        param[bsdf.ALPHA] = alpha
         param[bsdf.IOR] = m.ior
-        param[bsdf.FDR_INT] = fresnel_diffuse_reflectance(1.0 / m.ior)
+        param[bsdf.FDR_INT] = fdr
+        param[bsdf.COAT_TABLE : bsdf.COAT_TABLE + bsdf.COAT_NODES] = correction
         d_mean = sum(m.reflectance) / 3.0
         param[bsdf.SPECULAR_WEIGHT] = 1.0 / (1.0 + d_mean)
         return kind, m.reflectance, m.emission, m.two_sided, param
@@ -99,5 +135,5 @@ def material_table(materials: list[fmt.Material]) -> MaterialTable:
         albedo=np.array([r[1] for r in rows], dtype=np.float32).reshape(-1, 3),
         emission=np.array([r[2] for r in rows], dtype=np.float32).reshape(-1, 3),
         two_sided=np.array([r[3] for r in rows], dtype=np.bool_),
-        param=np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, bsdf.PARAMS),
+        param=np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, bsdf.PARAM_COLUMNS),
     )

@@ -1,4 +1,5 @@
-"""The isotropic GGX (Trowbridge-Reitz) microfacet distribution and its visible normals.
+"""The isotropic GGX (Trowbridge-Reitz) microfacet distribution, its visible normals, and the
+directional albedos of a rough dielectric interface (the plastic coat's tables).
 
 Directions are in the local shading frame (the macro normal is +z), unit length. ``alpha`` is
 GGX's roughness parameter (the scene format's ``roughness`` squared). Masking-shadowing is
@@ -9,6 +10,7 @@ Visible Normals", JCGT 7(4), 2018), whose density is ``G1(wo) max(0, wo.m) D(m) 
 
 import math
 
+from tracer.fresnel import fr_dielectric
 from tracer.jit import jit
 
 
@@ -120,3 +122,35 @@ def ggx_reflection_pdf(wo, wi, alpha):
         return 0.0
     h = half_vector(wo, wi)
     return ggx_g1(wo, alpha) * ggx_d(h, alpha) / (4.0 * wo[2])
+
+
+@jit
+def ggx_dielectric_albedo(cos_theta, alpha, eta, nodes, weights):
+    """Single-scattering directional albedo ``(R, T)`` of a GGX dielectric interface: the
+    shares of light arriving at ``cos_theta`` (> 0) from the side where the relative index is
+    ``eta`` that it reflects and transmits (after masking-shadowing, both height-correlated).
+
+    Each is the integral over visible normals ``m`` of Fresnel times ``G(wi, w) / G1(wi)``, ``w``
+    the reflected or refracted direction: a product rule over the unit square of Heitz's
+    sampler, ``nodes`` and ``weights`` (summing to 1) per axis.
+    """
+    wi = (math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta)), 0.0, cos_theta)
+    lambda_i = ggx_lambda(wi, alpha)
+    r = 0.0
+    t = 0.0
+    for a in range(nodes.shape[0]):
+        for b in range(nodes.shape[0]):
+            m = ggx_sample_visible_normal(wi, alpha, nodes[a], nodes[b])
+            w = weights[a] * weights[b] * (1.0 + lambda_i)  # / G1(wi)
+            cos_im = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2]
+            f = fr_dielectric(cos_im, eta)
+            wr = reflect_local(wi, m)
+            if wr[2] > 0.0:
+                r += w * f / (1.0 + lambda_i + ggx_lambda(wr, alpha))
+            sin2_t = (1.0 - cos_im * cos_im) / (eta * eta)
+            if sin2_t < 1.0:
+                c = cos_im / eta - math.sqrt(1.0 - sin2_t)
+                wt = (c * m[0] - wi[0] / eta, c * m[1] - wi[1] / eta, c * m[2] - wi[2] / eta)
+                if wt[2] < 0.0:
+                    t += w * (1.0 - f) / (1.0 + lambda_i + ggx_lambda(wt, alpha))
+    return r, t

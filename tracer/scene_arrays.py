@@ -60,7 +60,7 @@ class SceneArrays(NamedTuple):
     mat_kind: np.ndarray
     """int32 (Q,): BSDF kind (``tracer.bsdf`` constants)."""
     mat_param: np.ndarray
-    """float64 (Q, ``bsdf.PARAMS``): BSDF parameters (``tracer.materials``)."""
+    """float64 (Q, ``bsdf.PARAM_COLUMNS``): BSDF parameters (``tracer.materials``)."""
     mat_texture: np.ndarray
     """int32 (Q,): the material's base-colour texture (a row of ``tex_info``), or -1."""
     tri_uv: tuple[np.ndarray, np.ndarray]
