@@ -10,10 +10,12 @@ albedo itself is noisy:
 - plastic base (the diffuse part under the coat): ours
   ``R / (1 - Fdr) T(cos_i) T(cos_o) / (pi eta^2)`` with the rough coat's tables
   (docs/materials.md) against the diffuse component of Mitsuba's ``plastic`` (roughness 0) or
-  ``roughplastic``; and ours again with ``Fdr`` summed by Mitsuba's rule (the mean of
-  ``2 R(mu) mu`` over 64 equally spaced ``mu``, both ends included) instead of our quadrature,
-  which isolates the part of the difference that rule makes;
-- plastic, whole (coat and base), rough only: ours against Mitsuba's ``roughplastic``.
+  ``roughplastic`` with the same ``R``; and against Mitsuba's as ``tracer.mitsuba_export``
+  writes it, ``R`` scaled by ``rough_plastic_base_scale`` (which undoes Mitsuba's sum for
+  ``Fdr``, the mean of ``2 R(mu) mu`` over 64 equally spaced ``mu``): what remains is the
+  masking of the coat's transmittance;
+- plastic, whole (coat and base), rough only: ours against Mitsuba's ``roughplastic`` as
+  exported.
 
 Writes ``bench/results/mitsuba_models.json``. Needs Mitsuba (``scalar_rgb``, no libLLVM).
 """
@@ -108,24 +110,13 @@ def conductor_rows(mi, rng, samples: int) -> list[dict]:
     return rows
 
 
-def mitsuba_rule_fdr(alpha: float, ior: float) -> float:
-    """The coat's internal diffuse reflectance summed as Mitsuba's ``roughplastic`` does:
-    ``2 mean(R(mu) mu)`` over ``mu = max(1e-6, linspace(0, 1, 64))``, with our ``R``."""
-    from tracer.materials import COAT_QUADRATURE, gauss_legendre
-    from tracer.microfacet import ggx_dielectric_albedo
-
-    nodes, weights = gauss_legendre(COAT_QUADRATURE)
-    mu = np.maximum(1e-6, np.linspace(0.0, 1.0, 64))
-    r = np.array([ggx_dielectric_albedo(m, alpha, 1.0 / ior, nodes, weights)[0] for m in mu])
-    return float(2.0 * np.mean(r * mu))
-
-
 def plastic_rows(mi, rng, samples: int) -> list[dict]:
     """Albedo of our plastic (its base; the whole BSDF when rough) and Mitsuba's / ours, per
     roughness and view angle."""
     from tracer import bsdf as ours
     from tracer import scene_format as fmt
     from tracer.materials import PLASTIC_MIN_ALPHA, material_row
+    from tracer.mitsuba_export import rough_plastic_base_scale
 
     rows = []
     for roughness in PLASTIC_ROUGHNESS:
@@ -142,14 +133,16 @@ def plastic_rows(mi, rng, samples: int) -> list[dict]:
             "ext_ior": 1.0,
             "diffuse_reflectance": {"type": "rgb", "value": [BASE] * 3},
         }
+        scale = 1.0  # the export's factor on diffuse_reflectance (rough plastic only)
         if smooth:
             theirs = mi.load_dict({"type": "plastic", **spec})
         else:
-            theirs = mi.load_dict(
-                {"type": "roughplastic", "distribution": "ggx", "alpha": alpha, **spec}
-            )
+            rough = {"type": "roughplastic", "distribution": "ggx", "alpha": alpha, **spec}
+            theirs = mi.load_dict(rough)
+            scale = rough_plastic_base_scale(alpha, PLASTIC_IOR)
+            rough["diffuse_reflectance"] = {"type": "rgb", "value": [BASE * scale] * 3}
+            exported = mi.load_dict(rough)
         base = BASE / (math.pi * PLASTIC_IOR**2)
-        rule_scale = (1.0 - param[ours.FDR_INT]) / (1.0 - mitsuba_rule_fdr(alpha, PLASTIC_IOR))
         for angle in ANGLES:
             wo = local_view(angle)
             t_o = ours.coat_transmittance(param, row, wo[2])
@@ -167,7 +160,7 @@ def plastic_rows(mi, rng, samples: int) -> list[dict]:
                 "theta_o": angle,
                 "albedo_ours": mine / samples,
                 "ratio": other / mine,
-                "ratio_mitsuba_rule": other / (mine * rule_scale),
+                "ratio_exported": other * scale / mine,  # Mitsuba's base is linear in R
             }
             if not smooth:
                 whole_mine = whole_other = 0.0
@@ -178,7 +171,7 @@ def plastic_rows(mi, rng, samples: int) -> list[dict]:
                     if pdf <= 0.0:
                         continue
                     whole_mine += weight[0]
-                    whole_other += mitsuba_eval(mi, theirs, wo, wi) / pdf
+                    whole_other += mitsuba_eval(mi, exported, wo, wi) / pdf
                 result["albedo_whole_ours"] = whole_mine / samples
                 result["ratio_whole"] = whole_other / whole_mine
             rows.append(result)
@@ -226,13 +219,14 @@ def main(argv: list[str] | None = None) -> int:
         "roughness 0: Mitsuba's plastic; otherwise roughplastic with alpha = roughness^2",
     )
     table(
-        "Plastic base, ours with Fdr summed by Mitsuba's rule: ratio Mitsuba / ours",
+        "Plastic base as exported: ratio Mitsuba / ours",
         plastic,
-        "what remains once Mitsuba's sum for the internal reflectance is used: masking",
-        ratio="ratio_mitsuba_rule",
+        "rough: diffuse_reflectance times (1 - Fdr_mitsuba) / (1 - Fdr_ours), which undoes "
+        "Mitsuba's sum for the internal reflectance; what remains is masking",
+        ratio="ratio_exported",
     )
     table(
-        "Rough plastic, whole BSDF (coat and base): ratio Mitsuba / ours (our albedo)",
+        "Rough plastic as exported, whole BSDF (coat and base): ratio Mitsuba / ours (our albedo)",
         plastic,
         "our sampler's directions; Mitsuba's roughplastic evaluated with all components",
         ratio="ratio_whole",
