@@ -49,6 +49,8 @@ SCENES = {
     "nefertiti": ("nefertiti/scene.json", 4),
     "outdoor": ("outdoor/scene.json", 4),
     "gltf-box": ("gltf-box/Box.gltf", 5),
+    "environment": ("environment/scene.json", 4),
+    "textured": ("textured/scene.json", 2),
     "mitsuba/outdoor": ("mitsuba/outdoor/scene.json", 4),
     "mitsuba/many-lights": ("mitsuba/many-lights/scene.json", 4),
     "mitsuba/lamps": ("mitsuba/lamps/scene.json", 4),
