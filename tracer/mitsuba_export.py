@@ -626,9 +626,10 @@ class _Writer:
                 "model",
                 "Mitsuba's roughplastic is our model with separable masking in its coat tables "
                 "and its internal reflectance summed over 64 cosines (below the integral); "
-                f"diffuse_reflectance is scaled by {scale:.5f} to undo the latter: the bases "
-                "then differ by the transmittance's masking, within 0.1% up to roughness 0.3, "
-                "0.3% at 85 degrees (docs/mitsuba.md)",
+                f"diffuse_reflectance is scaled by {scale:.5f} to undo the latter; the masking "
+                "remains: up to roughness 0.3 the bases agree within 0.1% (0.3% at 85 degrees "
+                "from the normal), from 0.5 Mitsuba's coat passes and reflects less light, "
+                "several percent off the normal (docs/mitsuba.md)",
             )
         _float(bsdf, "int_ior", m.ior)
         _float(bsdf, "ext_ior", 1.0)
