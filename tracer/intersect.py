@@ -7,9 +7,9 @@ Robustness without epsilons (docs/robustness.md):
   because both evaluate the shared edge function from the same operands.
 * Hits closer than the conservative error bound of their own ``t`` are rejected (pbrt-v4's
   ``deltaT``), so a ray can never report its own origin surface at t ~ 0.
-* Boxes: the slab test ignores the NaN that ``0 * inf`` makes when a ray with a zero direction
-  component starts exactly on a slab plane (a NaN comparison is false, so it never tightens
-  the interval), and widens ``t_far`` by ``1 + 2 gamma(3)``.
+* Boxes (four per node, ``tracer.bvh``): the slab test ignores the NaN that ``0 * inf`` makes
+  when a ray with a zero direction component starts exactly on a slab plane (a NaN comparison
+  is false, so it never tightens the interval), and widens ``t_far`` by ``1 + 2 gamma(3)``.
 * Hit points carry a conservative error bound; :func:`offset_ray_origin` moves a spawned ray's
   origin just past it, along the geometric normal, with a margin for its own rounding.
 
@@ -79,8 +79,9 @@ def ray_setup(o, d):
 
 
 @jit_inline
-def slab(bounds, node, off, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
-    """Entry distance of the ray into box ``bounds[node, off:off+6]`` within [0, t_max], or inf.
+def slab(bounds, node, s, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
+    """Entry distance of the ray into the box of child slot ``s`` of wide node ``node``
+    (``tracer.bvh`` layout) within [0, t_max], or inf.
 
     ``nx, ny, nz`` select each axis's near plane (0: min, 3: max) from the direction's sign, so
     no per-box swaps are needed. Comparisons are written so that a NaN slab distance (0 * inf)
@@ -88,25 +89,75 @@ def slab(bounds, node, off, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
     """
     near = 0.0
     far = t_max
-    t = (bounds[node, off + nx] - ox) * ix
+    t = (bounds[node, 4 * nx + s] - ox) * ix
     if t > near:
         near = t
-    t = (bounds[node, off + 3 - nx] - ox) * ix
+    t = (bounds[node, 12 - 4 * nx + s] - ox) * ix
     if t < far:
         far = t
-    t = (bounds[node, off + 1 + ny] - oy) * iy
+    t = (bounds[node, 4 + 4 * ny + s] - oy) * iy
     if t > near:
         near = t
-    t = (bounds[node, off + 4 - ny] - oy) * iy
+    t = (bounds[node, 16 - 4 * ny + s] - oy) * iy
     if t < far:
         far = t
-    t = (bounds[node, off + 2 + nz] - oz) * iz
+    t = (bounds[node, 8 + 4 * nz + s] - oz) * iz
     if t > near:
         near = t
-    t = (bounds[node, off + 5 - nz] - oz) * iz
+    t = (bounds[node, 20 - 4 * nz + s] - oz) * iz
     if t < far:
         far = t
     return near if near <= far * SLAB_WIDEN else np.inf
+
+
+@jit_inline
+def _order(ta, ca, tb, cb):
+    """The pair (t, child) with the smaller t first."""
+    if tb < ta:
+        return tb, cb, ta, ca
+    return ta, ca, tb, cb
+
+
+@jit_inline
+def visit(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
+    """Distances to the four child boxes of wide node ``node`` (inf for a miss or an entry past
+    ``t_max``), sorted nearest first with the child references: ``(t0, c0, ..., t3, c3)``.
+    A box entered exactly at ``t_max`` counts: it may still hold a tie with a lower key."""
+    t0 = slab(bounds, node, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max)
+    t1 = slab(bounds, node, 1, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max)
+    t2 = slab(bounds, node, 2, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max)
+    t3 = slab(bounds, node, 3, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max)
+    t0 = t0 if t0 <= t_max else np.inf
+    t1 = t1 if t1 <= t_max else np.inf
+    t2 = t2 if t2 <= t_max else np.inf
+    t3 = t3 if t3 <= t_max else np.inf
+    c0 = child[node, 0]
+    c1 = child[node, 1]
+    c2 = child[node, 2]
+    c3 = child[node, 3]
+    # A sorting network of five compare-exchanges.
+    t0, c0, t1, c1 = _order(t0, c0, t1, c1)
+    t2, c2, t3, c3 = _order(t2, c2, t3, c3)
+    t0, c0, t2, c2 = _order(t0, c0, t2, c2)
+    t1, c1, t3, c3 = _order(t1, c1, t3, c3)
+    t1, c1, t2, c2 = _order(t1, c1, t2, c2)
+    return t0, c0, t1, c1, t2, c2, t3, c3
+
+
+@jit_inline
+def push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3):
+    """Push the entered boxes other than the nearest, farthest first (so nearer ones pop
+    first); returns the new stack pointer. Writes one entry past the last push at most."""
+    stack_node[sp] = c3
+    stack_t[sp] = t3
+    sp += 1 if t3 < np.inf else 0
+    stack_node[sp] = c2
+    stack_t[sp] = t2
+    sp += 1 if t2 < np.inf else 0
+    stack_node[sp] = c1
+    stack_t[sp] = t1
+    sp += 1 if t1 < np.inf else 0
+    return sp
 
 
 @jit_inline
@@ -206,53 +257,43 @@ def blas_closest(
     ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
     cost = 0
     sp = sp0
-    node = root
+    entry = root
     while True:
-        cost += 1
-        c0 = node_child[node, 0]
-        c1 = node_child[node, 1]
-        t0 = slab(node_bounds, node, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit)
-        t1 = slab(node_bounds, node, 6, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit)
-        if t1 < t0:
-            c0, c1 = c1, c0
-            t0, t1 = t1, t0
-        next_node = -1
-        # Near child first: test a leaf now, descend into an interior node next. A box entered
-        # exactly at t_hit may still hold a tie with a lower key, hence <=.
-        for c, tc in ((c0, t0), (c1, t1)):
-            if tc <= t_hit and tc < np.inf:
-                if c < 0:
-                    v = -1 - c
-                    for j in range(v >> 3, (v >> 3) + (v & 7)):
-                        cost += 1
-                        t, b0, b1, b2 = intersect_triangle(
-                            tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
-                        )
-                        if t < np.inf and closer(t, inst, tri_prim[j], t_hit, h_inst, h_prim):
-                            t_hit = t
-                            h_inst = inst
-                            h_j = j
-                            h_prim = tri_prim[j]
-                            hb0 = b0
-                            hb1 = b1
-                            hb2 = b2
-                elif next_node < 0:
-                    next_node = c
-                else:
-                    stack_node[sp] = c
-                    stack_t[sp] = tc
-                    sp += 1
-        if next_node >= 0:
-            node = next_node
-            continue
-        # Pop the nearest pending node that can still hold a closer hit.
-        node = -1
+        if entry >= 0:
+            # An interior node: go on into the nearest box entered, keep the others.
+            cost += 1
+            t0, c0, t1, c1, t2, c2, t3, c3 = visit(
+                node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit
+            )
+            sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
+            if t0 < np.inf:
+                entry = c0
+                continue
+        else:
+            v = -1 - entry
+            for j in range(v >> 3, (v >> 3) + (v & 7)):
+                cost += 1
+                t, b0, b1, b2 = intersect_triangle(
+                    tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
+                )
+                if t < np.inf and closer(t, inst, tri_prim[j], t_hit, h_inst, h_prim):
+                    t_hit = t
+                    h_inst = inst
+                    h_j = j
+                    h_prim = tri_prim[j]
+                    hb0 = b0
+                    hb1 = b1
+                    hb2 = b2
+        # Pop the nearest pending box that can still hold a closer hit.
+        entry = 0
+        found = False
         while sp > sp0:
             sp -= 1
             if stack_t[sp] <= t_hit:
-                node = stack_node[sp]
+                entry = stack_node[sp]
+                found = True
                 break
-        if node < 0:
+        if not found:
             return t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost
 
 
@@ -266,28 +307,37 @@ def blas_occluded(node_bounds, node_child, tri_verts, root, o, d, t_max, stack_n
     ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
     cost = 0
     sp = sp0
-    node = root
+    entry = root
     while True:
-        cost += 1
-        for side in range(2):
-            c = node_child[node, side]
-            if slab(node_bounds, node, 6 * side, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max) < t_max:
-                if c < 0:
-                    v = -1 - c
-                    for j in range(v >> 3, (v >> 3) + (v & 7)):
-                        cost += 1
-                        t, _, _, _ = intersect_triangle(
-                            tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max
-                        )
-                        if t < t_max:
-                            return True, cost
-                else:
-                    stack_node[sp] = c
-                    sp += 1
+        if entry >= 0:
+            # An interior node: go on into the first box entered, keep the others.
+            cost += 1
+            next_entry = 0
+            found = False
+            for s in range(4):
+                if slab(node_bounds, entry, s, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max) < t_max:
+                    if found:
+                        stack_node[sp] = node_child[entry, s]
+                        sp += 1
+                    else:
+                        next_entry = node_child[entry, s]
+                        found = True
+            if found:
+                entry = next_entry
+                continue
+        else:
+            v = -1 - entry
+            for j in range(v >> 3, (v >> 3) + (v & 7)):
+                cost += 1
+                t, _, _, _ = intersect_triangle(
+                    tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max
+                )
+                if t < t_max:
+                    return True, cost
         if sp == sp0:
             return False, cost
         sp -= 1
-        node = stack_node[sp]
+        entry = stack_node[sp]
 
 
 @jit_inline
