@@ -20,6 +20,9 @@ reference-count traffic on every ray.
 import math
 
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 from tracer.jit import jit, jit_inline
 
@@ -38,6 +41,8 @@ GAMMA7 = gamma(7)
 SLAB_WIDEN = 1.0 + 2.0 * GAMMA3
 NO_INSTANCE = np.iinfo(np.int32).max
 """Key of "no hit yet" in the closest-hit tie-break: above every real instance or triangle."""
+NO_ENTRY = np.iinfo(np.int32).min
+"""No node or leaf to enter next (child references are never this low)."""
 OFFSET_ROUNDING_MARGIN = 8.0 * MACHINE_EPSILON
 """Covers sum_i |n_i| * ulp(o_i) <= sqrt(3) * 2 eps * max|o_i| for the rounded origin o."""
 
@@ -118,19 +123,82 @@ def _order(ta, ca, tb, cb):
     return ta, ca, tb, cb
 
 
+@intrinsic
+def _slab4(typingctx, bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max):
+    """:func:`slab` for all four slots of a node at once, as LLVM vector code (numba does not
+    vectorise the four scalar tests itself): each bound row is one <4 x float> load, widened
+    to double; the same IEEE operations as :func:`slab` in the same order, so the same results.
+    Also maps an entry past ``t_max`` to inf. Needs a C-contiguous float32 ``bounds``."""
+    if not (
+        isinstance(bounds, types.Array)
+        and bounds.dtype == types.float32
+        and bounds.ndim == 2
+        and bounds.layout == "C"
+    ):
+        return None
+    f64 = types.float64
+    sig = types.UniTuple(f64, 4)(bounds, node, nx, ny, nz, f64, f64, f64, f64, f64, f64, f64)
+
+    def codegen(context, builder, signature, args):
+        b, node_, nx_, ny_, nz_, ox_, oy_, oz_, ix_, iy_, iz_, t_max_ = args
+        i64 = ir.IntType(64)
+        vf = ir.VectorType(ir.FloatType(), 4)
+        vd = ir.VectorType(ir.DoubleType(), 4)
+        array = context.make_array(signature.args[0])(context, builder, value=b)
+        row = builder.mul(
+            context.cast(builder, node_, signature.args[1], types.int64),
+            builder.extract_value(array.strides, 0),
+        )
+        base = builder.gep(builder.bitcast(array.data, ir.IntType(8).as_pointer()), [row])
+
+        def splat(x):
+            v = builder.insert_element(ir.Constant(vd, ir.Undefined), x, ir.Constant(i64, 0))
+            return builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), 4), 0))
+
+        def load_row(offset_bytes):
+            ptr = builder.bitcast(builder.gep(base, [offset_bytes]), vf.as_pointer())
+            return builder.fpext(builder.load(ptr, align=4), vd)
+
+        def row_offset(start, scale, n, n_type):
+            # start + scale * n bytes: n (0 or 3) moves between the min and the max rows.
+            n64 = context.cast(builder, n, n_type, types.int64)
+            return builder.add(ir.Constant(i64, start), builder.mul(n64, ir.Constant(i64, scale)))
+
+        near = splat(ir.Constant(ir.DoubleType(), 0.0))
+        far = splat(t_max_)
+        axes = (
+            (nx_, signature.args[2], ox_, ix_, 0),
+            (ny_, signature.args[3], oy_, iy_, 16),
+            (nz_, signature.args[4], oz_, iz_, 32),
+        )
+        for n, n_type, o, inv, start in axes:
+            o_v = splat(o)
+            inv_v = splat(inv)
+            # near plane: row (axis + n), far plane: row (axis + 3 - n); rows are 16 bytes.
+            t = builder.fmul(builder.fsub(load_row(row_offset(start, 16, n, n_type)), o_v), inv_v)
+            near = builder.select(builder.fcmp_ordered(">", t, near), t, near)
+            t = builder.fmul(
+                builder.fsub(load_row(row_offset(start + 48, -16, n, n_type)), o_v), inv_v
+            )
+            far = builder.select(builder.fcmp_ordered("<", t, far), t, far)
+        widened = builder.fmul(far, splat(ir.Constant(ir.DoubleType(), SLAB_WIDEN)))
+        hit = builder.and_(
+            builder.fcmp_ordered("<=", near, widened),
+            builder.fcmp_ordered("<=", near, splat(t_max_)),
+        )
+        result = builder.select(hit, near, splat(ir.Constant(ir.DoubleType(), np.inf)))
+        lanes = [builder.extract_element(result, ir.Constant(i64, k)) for k in range(4)]
+        return context.make_tuple(builder, signature.return_type, lanes)
+
+    return sig, codegen
+
+
 @jit_inline
 def visit(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
     """Distances to the four child boxes of wide node ``node`` (inf for a miss or an entry past
     ``t_max``), sorted nearest first with the child references: ``(t0, c0, ..., t3, c3)``.
     A box entered exactly at ``t_max`` counts: it may still hold a tie with a lower key."""
-    t0 = slab(bounds, node, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max)
-    t1 = slab(bounds, node, 1, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max)
-    t2 = slab(bounds, node, 2, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max)
-    t3 = slab(bounds, node, 3, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max)
-    t0 = t0 if t0 <= t_max else np.inf
-    t1 = t1 if t1 <= t_max else np.inf
-    t2 = t2 if t2 <= t_max else np.inf
-    t3 = t3 if t3 <= t_max else np.inf
+    t0, t1, t2, t3 = _slab4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max)
     c0 = child[node, 0]
     c1 = child[node, 1]
     c2 = child[node, 2]
@@ -226,6 +294,23 @@ def closer(t, inst, prim, t_best, inst_best, prim_best):
 
 
 @jit_inline
+def enter_any(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max, stack_node, sp):
+    """For an any-hit traversal: the children of wide node ``node`` whose boxes the ray enters
+    before ``t_max``, in slot order; returns the first (``NO_ENTRY`` if none) and the stack
+    pointer after pushing the others."""
+    t0, t1, t2, t3 = _slab4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max)
+    entry = NO_ENTRY
+    for t, s in ((t0, 0), (t1, 1), (t2, 2), (t3, 3)):
+        if t < t_max:
+            if entry == NO_ENTRY:
+                entry = child[node, s]
+            else:
+                stack_node[sp] = child[node, s]
+                sp += 1
+    return entry, sp
+
+
+@jit_inline
 def blas_closest(
     node_bounds,
     node_child,
@@ -312,18 +397,11 @@ def blas_occluded(node_bounds, node_child, tri_verts, root, o, d, t_max, stack_n
         if entry >= 0:
             # An interior node: go on into the first box entered, keep the others.
             cost += 1
-            next_entry = 0
-            found = False
-            for s in range(4):
-                if slab(node_bounds, entry, s, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max) < t_max:
-                    if found:
-                        stack_node[sp] = node_child[entry, s]
-                        sp += 1
-                    else:
-                        next_entry = node_child[entry, s]
-                        found = True
-            if found:
-                entry = next_entry
+            entry, sp = enter_any(
+                node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max,
+                stack_node, sp,
+            )  # fmt: skip
+            if entry != NO_ENTRY:
                 continue
         else:
             v = -1 - entry

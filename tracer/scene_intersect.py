@@ -13,23 +13,22 @@ import math
 import numpy as np
 
 from tracer.intersect import (
+    NO_ENTRY,
     NO_INSTANCE,
     OFFSET_ROUNDING_MARGIN,
     blas_closest,
     blas_occluded,
+    enter_any,
     geometric_normal,
     hit_point,
     push_far,
     ray_setup,
-    slab,
     visit,
 )
 from tracer.jit import jit_inline
 from tracer.scene_arrays import pick
 from tracer.transforms import apply_normal, apply_point, apply_vector
 
-NO_ENTRY = np.iinfo(np.int32).min
-"""No top-level node or leaf to enter next (child references are never this low)."""
 GUARD = 1.0 + 2.0**-20
 """Slack on magnitude bounds, so a bound taken before a tiny offset still covers the result."""
 
@@ -173,16 +172,10 @@ def scene_occluded(s, o, d, t_max, stack_node):
             continue
         # A top-level node: go on into the first box entered, keep the others.
         cost += 1
-        node = entry
-        entry = NO_ENTRY
-        for side in range(4):
-            t_box = slab(s.tlas_bounds, node, side, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_max)
-            if t_box < t_max:
-                if entry == NO_ENTRY:
-                    entry = s.tlas_child[node, side]
-                else:
-                    stack_node[sp] = s.tlas_child[node, side]
-                    sp += 1
+        entry, sp = enter_any(
+            s.tlas_bounds, s.tlas_child, entry, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_max,
+            stack_node, sp,
+        )  # fmt: skip
 
 
 @jit_inline
