@@ -116,7 +116,7 @@ def slab(bounds, node, s, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
 
 
 @jit_inline
-def _order(ta, ca, tb, cb):
+def nearer_first(ta, ca, tb, cb):
     """The pair (t, child) with the smaller t first."""
     if tb < ta:
         return tb, cb, ta, ca
@@ -204,11 +204,11 @@ def visit(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
     c2 = child[node, 2]
     c3 = child[node, 3]
     # A sorting network of five compare-exchanges.
-    t0, c0, t1, c1 = _order(t0, c0, t1, c1)
-    t2, c2, t3, c3 = _order(t2, c2, t3, c3)
-    t0, c0, t2, c2 = _order(t0, c0, t2, c2)
-    t1, c1, t3, c3 = _order(t1, c1, t3, c3)
-    t1, c1, t2, c2 = _order(t1, c1, t2, c2)
+    t0, c0, t1, c1 = nearer_first(t0, c0, t1, c1)
+    t2, c2, t3, c3 = nearer_first(t2, c2, t3, c3)
+    t0, c0, t2, c2 = nearer_first(t0, c0, t2, c2)
+    t1, c1, t3, c3 = nearer_first(t1, c1, t3, c3)
+    t1, c1, t2, c2 = nearer_first(t1, c1, t2, c2)
     return t0, c0, t1, c1, t2, c2, t3, c3
 
 
