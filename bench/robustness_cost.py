@@ -34,6 +34,7 @@ from raycast import camera_rays, icospheres
 from tracer import bvh, config
 from tracer.borrow import borrowed
 from tracer.compile import STATIC_KEY, compile_scene
+from tracer.intersect import nearer_first, push_far
 from tracer.loader import load_scene
 from tracer.raycast import Hits, _closest
 
@@ -44,22 +45,23 @@ NAIVE_EPSILON = 1e-7
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _naive_slab(b, node, off, ox, oy, oz, ix, iy, iz, t_max):
-    t0 = (b[node, off] - ox) * ix
-    t1 = (b[node, off + 3] - ox) * ix
+def _naive_slab(b, node, s, ox, oy, oz, ix, iy, iz, t_max):
+    """Entry distance into the box of slot ``s`` of a wide node (tracer.bvh layout), or inf."""
+    t0 = (b[node, s] - ox) * ix
+    t1 = (b[node, 12 + s] - ox) * ix
     near = min(t0, t1)
     far = max(t0, t1)
-    t0 = (b[node, off + 1] - oy) * iy
-    t1 = (b[node, off + 4] - oy) * iy
+    t0 = (b[node, 4 + s] - oy) * iy
+    t1 = (b[node, 16 + s] - oy) * iy
     near = max(near, min(t0, t1))
     far = min(far, max(t0, t1))
-    t0 = (b[node, off + 2] - oz) * iz
-    t1 = (b[node, off + 5] - oz) * iz
+    t0 = (b[node, 8 + s] - oz) * iz
+    t1 = (b[node, 20 + s] - oz) * iz
     near = max(near, min(t0, t1))
     far = min(far, max(t0, t1))
     near = max(near, 0.0)
     far = min(far, t_max)
-    return near if near <= far else np.inf
+    return near if near <= far and near < t_max else np.inf
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -112,41 +114,41 @@ def naive_closest(
         t_hit = np.inf
         hit = -1
         sp = 0
-        node = 0
+        entry = 0
         while True:
-            c0 = node_child[node, 0]
-            c1 = node_child[node, 1]
-            t0 = _naive_slab(node_bounds, node, 0, o[0], o[1], o[2], ix, iy, iz, t_hit)
-            t1 = _naive_slab(node_bounds, node, 6, o[0], o[1], o[2], ix, iy, iz, t_hit)
-            if t1 < t0:
-                c0, c1 = c1, c0
-                t0, t1 = t1, t0
-            next_node = -1
-            for c, tc in ((c0, t0), (c1, t1)):
-                if tc < t_hit:
-                    if c < 0:
-                        v = -1 - c
-                        for j in range(v >> 3, (v >> 3) + (v & 7)):
-                            t = _moller_trumbore(tri_verts, j, o, d, t_hit)
-                            if t < t_hit:
-                                t_hit = t
-                                hit = j
-                    elif next_node < 0:
-                        next_node = c
-                    else:
-                        stack_node[sp] = c
-                        stack_t[sp] = tc
-                        sp += 1
-            if next_node >= 0:
-                node = next_node
-                continue
-            node = -1
+            if entry >= 0:
+                t0 = _naive_slab(node_bounds, entry, 0, o[0], o[1], o[2], ix, iy, iz, t_hit)
+                t1 = _naive_slab(node_bounds, entry, 1, o[0], o[1], o[2], ix, iy, iz, t_hit)
+                t2 = _naive_slab(node_bounds, entry, 2, o[0], o[1], o[2], ix, iy, iz, t_hit)
+                t3 = _naive_slab(node_bounds, entry, 3, o[0], o[1], o[2], ix, iy, iz, t_hit)
+                c0 = node_child[entry, 0]
+                c1 = node_child[entry, 1]
+                c2 = node_child[entry, 2]
+                c3 = node_child[entry, 3]
+                t0, c0, t1, c1 = nearer_first(t0, c0, t1, c1)
+                t2, c2, t3, c3 = nearer_first(t2, c2, t3, c3)
+                t0, c0, t2, c2 = nearer_first(t0, c0, t2, c2)
+                t1, c1, t3, c3 = nearer_first(t1, c1, t3, c3)
+                t1, c1, t2, c2 = nearer_first(t1, c1, t2, c2)
+                sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
+                if t0 < np.inf:
+                    entry = c0
+                    continue
+            else:
+                v = -1 - entry
+                for j in range(v >> 3, (v >> 3) + (v & 7)):
+                    t = _moller_trumbore(tri_verts, j, o, d, t_hit)
+                    if t < t_hit:
+                        t_hit = t
+                        hit = j
+            found = False
             while sp > 0:
                 sp -= 1
                 if stack_t[sp] < t_hit:
-                    node = stack_node[sp]
+                    entry = stack_node[sp]
+                    found = True
                     break
-            if node < 0:
+            if not found:
                 break
         prim[i] = tri_prim[hit] if hit >= 0 else -1
 

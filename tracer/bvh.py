@@ -9,12 +9,20 @@ Two layouts, after tinybvh:
     Node 0 is the root. Empty leaves exist only as the root of an empty tree.
 
 ``TraversalBVH`` (what kernels read)
-    Interior nodes only, each holding both child boxes so one visit tests two boxes.
-    ``node_bounds`` float32 (N, 12): left min xyz, left max xyz, right min xyz, right max xyz.
-    ``node_child`` int32 (N, 2): ``c >= 0`` is an interior node; ``c < 0`` is a leaf, with
-    ``v = -1 - c``, first triangle ``v >> 3`` and count ``v & 7`` (0 = empty, inverted box).
-    Triangles are stored in leaf order: ``tri_verts`` float32 (M, 9) (v0, v1, v2) and
-    ``tri_prim`` int32 (M,), the original triangle index of each. 56 bytes a node.
+    A 4-wide tree collapsed from the binary one (as Embree's and tinybvh's BVH4 CPU layouts):
+    interior nodes only, each holding the boxes of up to four children, so one visit tests four
+    boxes. ``node_bounds`` float32 (N, 24), structure of arrays: row ``r`` of the box (min x,
+    min y, min z, max x, max y, max z) of child slot ``s`` is at ``4 * r + s``.
+    ``node_child`` int32 (N, 4): ``c >= 0`` is an interior node (after its parent); ``c < 0`` is
+    a leaf, with ``v = -1 - c``, first triangle ``v >> 3`` and count ``v & 7`` (0 = an empty
+    slot, with an inverted box). Triangles are stored in leaf order, depth first, so every
+    subtree's triangles are one contiguous run: ``tri_verts`` float32 (M, 9) (v0, v1, v2) and
+    ``tri_prim`` int32 (M,), the original triangle index of each. 112 bytes a node.
+
+    The collapse opens, in each wide node, the interior child with the largest surface area
+    until the node has four children. A traversal keeps at most ``stack_need`` entries of a
+    tree on its stack; trees whose need exceeds ``MAX_STACK_NEED`` (only adversarial inputs)
+    are kept binary (two slots a node), whose need the depth limit bounds.
 """
 
 from typing import NamedTuple
@@ -26,6 +34,12 @@ from tracer.jit import jit
 
 LEAF_COUNT_BITS = 3
 MAX_TRIANGLES = (1 << (31 - LEAF_COUNT_BITS)) - 1
+WIDTH = 4
+"""Children per traversal node."""
+NODE_FLOATS = 6 * WIDTH
+MAX_STACK_NEED = (config.TRAVERSAL_STACK_SIZE - 4) // 2
+"""Most stack entries one tree's traversal may need: a scene traversal stacks a mesh's on top
+of the top level's, and each visit may write one entry past its last push."""
 
 
 class CanonicalBVH(NamedTuple):
@@ -356,6 +370,8 @@ def build_boxes(lo: np.ndarray, hi: np.ndarray, prims: np.ndarray) -> CanonicalB
 
 @jit
 def _flatten(node_min, node_max, left_first, count, prim_order, tri_verts):
+    """The binary traversal tree (interior nodes only, both child boxes in one (N, 12) row,
+    child references (N, 2)) that ``collapse`` makes wide, and the leaf-ordered triangles."""
     n_canon = count.shape[0]
     n_leaves = 0
     for i in range(n_canon):
@@ -419,22 +435,120 @@ def _flatten(node_min, node_max, left_first, count, prim_order, tri_verts):
     return bounds, child, out_verts, out_prim
 
 
+@jit
+def _slot_area(node_bounds, node, side):
+    """Half surface area of child ``side`` of a binary traversal node (-1 for an empty box)."""
+    o = 6 * side
+    dx = np.float64(node_bounds[node, o + 3]) - np.float64(node_bounds[node, o])
+    dy = np.float64(node_bounds[node, o + 4]) - np.float64(node_bounds[node, o + 1])
+    dz = np.float64(node_bounds[node, o + 5]) - np.float64(node_bounds[node, o + 2])
+    if not dx >= 0.0:
+        return -1.0
+    return dx * dy + dy * dz + dz * dx
+
+
+@jit
+def collapse(node_bounds, node_child, width):
+    """The wide layout (module docstring) of a binary traversal tree (``node_bounds`` (N, 12),
+    ``node_child`` (N, 2), as ``_flatten`` writes): each wide node takes a binary node's two
+    children and opens its largest interior child until it holds ``width`` (2 to 4) children.
+    Nodes are laid out depth first, children after their parent; leaves are kept as they are."""
+    n = node_bounds.shape[0]
+    bounds = np.empty((n, NODE_FLOATS), np.float32)
+    child = np.empty((n, WIDTH), np.int32)
+    st_bin = np.empty(n + 1, np.int64)
+    st_out = np.empty(n + 1, np.int64)
+    st_bin[0] = 0
+    st_out[0] = 0
+    sp = 1
+    n_out = 1
+    slot_node = np.empty(WIDTH, np.int64)  # each slot is child ``slot_side`` of binary node
+    slot_side = np.empty(WIDTH, np.int64)
+    while sp > 0:
+        sp -= 1
+        b = st_bin[sp]
+        out = st_out[sp]
+        slot_node[0] = b
+        slot_side[0] = 0
+        slot_node[1] = b
+        slot_side[1] = 1
+        k = 2
+        while k < width:
+            best = -1
+            best_area = -1.0
+            for s in range(k):
+                if node_child[slot_node[s], slot_side[s]] >= 0:
+                    area = _slot_area(node_bounds, slot_node[s], slot_side[s])
+                    if area > best_area:
+                        best_area = area
+                        best = s
+            if best < 0:
+                break
+            c = node_child[slot_node[best], slot_side[best]]
+            slot_node[best] = c
+            slot_side[best] = 0
+            slot_node[k] = c
+            slot_side[k] = 1
+            k += 1
+        for s in range(WIDTH):
+            if s < k:
+                for r in range(6):
+                    bounds[out, 4 * r + s] = node_bounds[slot_node[s], 6 * slot_side[s] + r]
+                c = node_child[slot_node[s], slot_side[s]]
+                if c >= 0:
+                    child[out, s] = n_out
+                    st_bin[sp] = c
+                    st_out[sp] = n_out
+                    sp += 1
+                    n_out += 1
+                else:
+                    child[out, s] = c
+            else:
+                for r in range(3):
+                    bounds[out, 4 * r + s] = np.inf
+                    bounds[out, 4 * (r + 3) + s] = -np.inf
+                child[out, s] = -1
+    return bounds[:n_out].copy(), child[:n_out].copy()
+
+
+@jit
+def stack_need(node_child):
+    """Most stack entries a traversal of this tree can hold: at each node it keeps every box
+    it enters but one (the nearest, which it visits next), so a node adds its children but one
+    to the need of its neediest interior child."""
+    n = node_child.shape[0]
+    need = np.zeros(n, np.int64)
+    for node in range(n - 1, -1, -1):  # children come after their parent
+        kids = 0
+        deepest = 0
+        for s in range(WIDTH):
+            c = node_child[node, s]
+            if c >= 0:
+                kids += 1
+                deepest = max(deepest, need[c])
+            elif (-1 - c) & 7 > 0:
+                kids += 1
+        need[node] = max(kids - 1, 0) + deepest
+    return need[0]
+
+
+def flatten(canonical: CanonicalBVH, tri_verts: np.ndarray) -> TraversalBVH:
+    """The traversal layout of a canonical tree, copying triangles into leaf order; four-wide,
+    or two-wide when four-wide would need more than ``MAX_STACK_NEED`` stack entries."""
+    bounds, child, verts, prim = _flatten(*canonical, tri_verts)
+    for width in (WIDTH, 2):
+        wide_bounds, wide_child = collapse(bounds, child, width)
+        if stack_need(wide_child) <= MAX_STACK_NEED:
+            return TraversalBVH(wide_bounds, wide_child, verts, prim)
+    raise AssertionError("BVH traversal needs more stack than the kernels have")
+
+
 def to_traversal(canonical: CanonicalBVH, tri_verts: np.ndarray) -> TraversalBVH:
     """Convert a canonical BVH into the traversal layout, copying triangles into leaf order."""
-    result = TraversalBVH(
-        *_flatten(
-            canonical.node_min,
-            canonical.node_max,
-            canonical.left_first,
-            canonical.count,
-            canonical.prim_order,
-            np.ascontiguousarray(tri_verts, dtype=np.float32),
-        )
-    )
-    n_leaves = int((canonical.count > 0).sum())
-    expected = max(1, canonical.count.shape[0] - n_leaves)
-    if result.node_bounds.shape[0] != expected:
-        raise AssertionError("traversal BVH has the wrong number of interior nodes")
+    result = flatten(canonical, np.ascontiguousarray(tri_verts, dtype=np.float32))
+    refs = result.node_child[result.node_child < 0].astype(np.int64)
+    if int((((-1 - refs) & 7) > 0).sum()) != int((canonical.count > 0).sum()):
+        raise AssertionError("traversal BVH does not hold every leaf")
     return result
 
 
@@ -444,11 +558,16 @@ def decode_leaf(child: int) -> tuple[int, int]:
     return v >> LEAF_COUNT_BITS, v & ((1 << LEAF_COUNT_BITS) - 1)
 
 
+def slot_boxes(node_bounds: np.ndarray) -> np.ndarray:
+    """The child boxes of traversal nodes as (N, WIDTH, 2, 3): node, slot, min/max, xyz."""
+    return node_bounds.reshape(-1, 2, 3, WIDTH).transpose(0, 3, 1, 2)
+
+
 @jit
 def _refit(node_bounds, node_child, tri_verts):
     for node in range(node_bounds.shape[0] - 1, -1, -1):  # children come after their parent
-        for side in range(2):
-            c = node_child[node, side]
+        for s in range(WIDTH):
+            c = node_child[node, s]
             lo0 = np.inf
             lo1 = np.inf
             lo2 = np.inf
@@ -456,14 +575,13 @@ def _refit(node_bounds, node_child, tri_verts):
             hi1 = -np.inf
             hi2 = -np.inf
             if c >= 0:
-                for half in range(2):
-                    o = 6 * half
-                    lo0 = min(lo0, node_bounds[c, o])
-                    lo1 = min(lo1, node_bounds[c, o + 1])
-                    lo2 = min(lo2, node_bounds[c, o + 2])
-                    hi0 = max(hi0, node_bounds[c, o + 3])
-                    hi1 = max(hi1, node_bounds[c, o + 4])
-                    hi2 = max(hi2, node_bounds[c, o + 5])
+                for q in range(WIDTH):
+                    lo0 = min(lo0, node_bounds[c, q])
+                    lo1 = min(lo1, node_bounds[c, 4 + q])
+                    lo2 = min(lo2, node_bounds[c, 8 + q])
+                    hi0 = max(hi0, node_bounds[c, 12 + q])
+                    hi1 = max(hi1, node_bounds[c, 16 + q])
+                    hi2 = max(hi2, node_bounds[c, 20 + q])
             else:
                 v = -1 - c
                 for j in range(v >> 3, (v >> 3) + (v & 7)):
@@ -474,13 +592,12 @@ def _refit(node_bounds, node_child, tri_verts):
                         hi0 = max(hi0, tri_verts[j, 3 * q])
                         hi1 = max(hi1, tri_verts[j, 3 * q + 1])
                         hi2 = max(hi2, tri_verts[j, 3 * q + 2])
-            o = 6 * side
-            node_bounds[node, o] = lo0
-            node_bounds[node, o + 1] = lo1
-            node_bounds[node, o + 2] = lo2
-            node_bounds[node, o + 3] = hi0
-            node_bounds[node, o + 4] = hi1
-            node_bounds[node, o + 5] = hi2
+            node_bounds[node, s] = lo0
+            node_bounds[node, 4 + s] = lo1
+            node_bounds[node, 8 + s] = lo2
+            node_bounds[node, 12 + s] = hi0
+            node_bounds[node, 16 + s] = hi1
+            node_bounds[node, 20 + s] = hi2
 
 
 def refit(bvh: TraversalBVH, tri_verts: np.ndarray) -> TraversalBVH:

@@ -24,7 +24,7 @@ import numpy as np
 
 from tracer import bvh as bvh_module
 from tracer import config
-from tracer.bvh import TraversalBVH
+from tracer.bvh import WIDTH, TraversalBVH
 from tracer.jit import jit
 
 
@@ -38,10 +38,9 @@ class BVHUpdate(NamedTuple):
 
 @jit
 def _box_half_area(bounds, node, side):
-    o = 6 * side
-    dx = np.float64(bounds[node, o + 3]) - np.float64(bounds[node, o])
-    dy = np.float64(bounds[node, o + 4]) - np.float64(bounds[node, o + 1])
-    dz = np.float64(bounds[node, o + 5]) - np.float64(bounds[node, o + 2])
+    dx = np.float64(bounds[node, 12 + side]) - np.float64(bounds[node, side])
+    dy = np.float64(bounds[node, 16 + side]) - np.float64(bounds[node, 4 + side])
+    dz = np.float64(bounds[node, 20 + side]) - np.float64(bounds[node, 8 + side])
     if not (dx >= 0.0 and dy >= 0.0 and dz >= 0.0):
         return 0.0  # an empty (inverted) box
     return dx * dy + dy * dz + dz * dx
@@ -61,16 +60,15 @@ def _costs(node_bounds, node_child, c_trav, c_isect):
         hi = np.int64(-1)
         x0 = y0 = z0 = np.inf
         x1 = y1 = z1 = -np.inf
-        for side in range(2):
+        for side in range(WIDTH):
             area = _box_half_area(node_bounds, node, side)
-            o = 6 * side
             if area > 0.0:
-                x0 = min(x0, np.float64(node_bounds[node, o]))
-                y0 = min(y0, np.float64(node_bounds[node, o + 1]))
-                z0 = min(z0, np.float64(node_bounds[node, o + 2]))
-                x1 = max(x1, np.float64(node_bounds[node, o + 3]))
-                y1 = max(y1, np.float64(node_bounds[node, o + 4]))
-                z1 = max(z1, np.float64(node_bounds[node, o + 5]))
+                x0 = min(x0, np.float64(node_bounds[node, side]))
+                y0 = min(y0, np.float64(node_bounds[node, 4 + side]))
+                z0 = min(z0, np.float64(node_bounds[node, 8 + side]))
+                x1 = max(x1, np.float64(node_bounds[node, 12 + side]))
+                y1 = max(y1, np.float64(node_bounds[node, 16 + side]))
+                z1 = max(z1, np.float64(node_bounds[node, 20 + side]))
             c = node_child[node, side]
             if c >= 0:
                 total += weighted[c]
@@ -106,7 +104,7 @@ def _topmost_over(node_child, ratio, reference, threshold):
         if ratio[node] > threshold * reference[node]:
             marked[node] = True
             continue
-        for side in range(2):
+        for side in range(WIDTH):
             c = node_child[node, side]
             if c >= 0:
                 stack[sp] = c
@@ -127,8 +125,8 @@ def _rebuild_marked(
     budget = 0
     for r in roots:
         budget += max(1, end[r] - first[r])
-    sub_bounds = np.empty((budget, 12), np.float32)
-    sub_child = np.empty((budget, 2), np.int32)
+    sub_bounds = np.empty((budget, 6 * WIDTH), np.float32)
+    sub_child = np.empty((budget, WIDTH), np.int32)
     sub_start = np.full(n_old, -1, np.int64)  # old marked node -> its new subtree's root row
     out_verts = tri_verts.copy()
     out_prim = tri_prim.copy()
@@ -142,11 +140,12 @@ def _rebuild_marked(
         node_min, node_max, left_first, count, order = bvh_module._build(
             lo, hi, prims, n_bins, max_leaf, c_trav, c_isect, max_depth
         )
-        b, ch, v, p = bvh_module._flatten(node_min, node_max, left_first, count, order, local)
+        b2, ch2, v, p = bvh_module._flatten(node_min, node_max, left_first, count, order, local)
+        b, ch = bvh_module.collapse(b2, ch2, WIDTH)
         m = b.shape[0]
         for i in range(m):
             sub_bounds[used + i] = b[i]
-            for side in range(2):
+            for side in range(WIDTH):
                 c = ch[i, side]
                 if c >= 0:
                     sub_child[used + i, side] = c + used
@@ -164,8 +163,8 @@ def _rebuild_marked(
     # Lay out old (unmarked) and new nodes depth-first. A reference is (tree, row): tree 0 is
     # the old tree, tree 1 the rebuilt subtrees.
     capacity = n_old + used
-    bounds = np.empty((capacity, 12), np.float32)
-    child = np.empty((capacity, 2), np.int32)
+    bounds = np.empty((capacity, 6 * WIDTH), np.float32)
+    child = np.empty((capacity, WIDTH), np.int32)
     copied_from = np.full(capacity, -1, np.int64)
     st_tree = np.empty(capacity, np.int64)
     st_row = np.empty(capacity, np.int64)
@@ -188,7 +187,7 @@ def _rebuild_marked(
             copied_from[out] = row
         else:
             bounds[out] = sub_bounds[row]
-        for side in range(2):
+        for side in range(WIDTH):
             c = node_child[row, side] if tree == 0 else sub_child[row, side]
             if c < 0:
                 child[out, side] = c
@@ -204,21 +203,6 @@ def _rebuild_marked(
             sp += 1
             next_index += 1
     return bounds[:next_index], child[:next_index], out_verts, out_prim, copied_from[:next_index]
-
-
-@jit
-def _depth(node_child):
-    """Interior levels on the longest root-to-leaf path."""
-    n = node_child.shape[0]
-    depth = np.ones(n, np.int64)
-    deepest = 1
-    for node in range(n):
-        for side in range(2):
-            c = node_child[node, side]
-            if c >= 0:
-                depth[c] = depth[node] + 1
-                deepest = max(deepest, depth[c])
-    return deepest
 
 
 def sah_costs(bvh: TraversalBVH) -> np.ndarray:
@@ -271,7 +255,7 @@ def update(
         c_isect,
         config.BVH_MAX_BUILD_DEPTH,
     )
-    if _depth(child) + 1 > config.BVH_MAX_TREE_DEPTH:
+    if bvh_module.stack_need(child) > bvh_module.MAX_STACK_NEED:
         return rebuild(refitted.tri_verts, refitted.tri_prim)
     result = TraversalBVH(bounds, child, verts, prim)
     new_reference = sah_costs(result)

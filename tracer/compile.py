@@ -366,7 +366,7 @@ def static_accel(state: SceneState, signature: tuple, material_index: dict) -> M
 def _shift_children(child, node_offset, tri_offset):
     out = np.empty_like(child)
     for i in range(child.shape[0]):
-        for side in range(2):
+        for side in range(child.shape[1]):
             c = child[i, side]
             if c >= 0:
                 out[i, side] = c + node_offset
@@ -417,8 +417,8 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
         accels,
         node_offset,
         tri_offset,
-        joined(bounds, (0, 12), np.float32),
-        joined(child, (0, 2), np.int32),
+        joined(bounds, (0, bvh_module.NODE_FLOATS), np.float32),
+        joined(child, (0, bvh_module.WIDTH), np.int32),
         joined(verts, (0, 9), np.float32),
         joined(prim, (0,), np.int32),
         joined(material, (0,), np.int32),

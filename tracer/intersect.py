@@ -7,9 +7,9 @@ Robustness without epsilons (docs/robustness.md):
   because both evaluate the shared edge function from the same operands.
 * Hits closer than the conservative error bound of their own ``t`` are rejected (pbrt-v4's
   ``deltaT``), so a ray can never report its own origin surface at t ~ 0.
-* Boxes: the slab test ignores the NaN that ``0 * inf`` makes when a ray with a zero direction
-  component starts exactly on a slab plane (a NaN comparison is false, so it never tightens
-  the interval), and widens ``t_far`` by ``1 + 2 gamma(3)``.
+* Boxes (four per node, ``tracer.bvh``): the slab test ignores the NaN that ``0 * inf`` makes
+  when a ray with a zero direction component starts exactly on a slab plane (a NaN comparison
+  is false, so it never tightens the interval), and widens ``t_far`` by ``1 + 2 gamma(3)``.
 * Hit points carry a conservative error bound; :func:`offset_ray_origin` moves a spawned ray's
   origin just past it, along the geometric normal, with a margin for its own rounding.
 
@@ -20,6 +20,9 @@ reference-count traffic on every ray.
 import math
 
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 from tracer.jit import jit, jit_inline
 
@@ -38,6 +41,8 @@ GAMMA7 = gamma(7)
 SLAB_WIDEN = 1.0 + 2.0 * GAMMA3
 NO_INSTANCE = np.iinfo(np.int32).max
 """Key of "no hit yet" in the closest-hit tie-break: above every real instance or triangle."""
+NO_ENTRY = np.iinfo(np.int32).min
+"""No node or leaf to enter next (child references are never this low)."""
 OFFSET_ROUNDING_MARGIN = 8.0 * MACHINE_EPSILON
 """Covers sum_i |n_i| * ulp(o_i) <= sqrt(3) * 2 eps * max|o_i| for the rounded origin o."""
 
@@ -79,8 +84,9 @@ def ray_setup(o, d):
 
 
 @jit_inline
-def slab(bounds, node, off, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
-    """Entry distance of the ray into box ``bounds[node, off:off+6]`` within [0, t_max], or inf.
+def slab(bounds, node, s, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
+    """Entry distance of the ray into the box of child slot ``s`` of wide node ``node``
+    (``tracer.bvh`` layout) within [0, t_max], or inf.
 
     ``nx, ny, nz`` select each axis's near plane (0: min, 3: max) from the direction's sign, so
     no per-box swaps are needed. Comparisons are written so that a NaN slab distance (0 * inf)
@@ -88,25 +94,138 @@ def slab(bounds, node, off, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
     """
     near = 0.0
     far = t_max
-    t = (bounds[node, off + nx] - ox) * ix
+    t = (bounds[node, 4 * nx + s] - ox) * ix
     if t > near:
         near = t
-    t = (bounds[node, off + 3 - nx] - ox) * ix
+    t = (bounds[node, 12 - 4 * nx + s] - ox) * ix
     if t < far:
         far = t
-    t = (bounds[node, off + 1 + ny] - oy) * iy
+    t = (bounds[node, 4 + 4 * ny + s] - oy) * iy
     if t > near:
         near = t
-    t = (bounds[node, off + 4 - ny] - oy) * iy
+    t = (bounds[node, 16 - 4 * ny + s] - oy) * iy
     if t < far:
         far = t
-    t = (bounds[node, off + 2 + nz] - oz) * iz
+    t = (bounds[node, 8 + 4 * nz + s] - oz) * iz
     if t > near:
         near = t
-    t = (bounds[node, off + 5 - nz] - oz) * iz
+    t = (bounds[node, 20 - 4 * nz + s] - oz) * iz
     if t < far:
         far = t
     return near if near <= far * SLAB_WIDEN else np.inf
+
+
+@jit_inline
+def nearer_first(ta, ca, tb, cb):
+    """The pair (t, child) with the smaller t first."""
+    if tb < ta:
+        return tb, cb, ta, ca
+    return ta, ca, tb, cb
+
+
+@intrinsic
+def _slab4(typingctx, bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max):
+    """:func:`slab` for all four slots of a node at once, as LLVM vector code (numba does not
+    vectorise the four scalar tests itself): each bound row is one <4 x float> load, widened
+    to double; the same IEEE operations as :func:`slab` in the same order, so the same results.
+    Also maps an entry past ``t_max`` to inf. Needs a C-contiguous float32 ``bounds``."""
+    if not (
+        isinstance(bounds, types.Array)
+        and bounds.dtype == types.float32
+        and bounds.ndim == 2
+        and bounds.layout == "C"
+    ):
+        return None
+    f64 = types.float64
+    sig = types.UniTuple(f64, 4)(bounds, node, nx, ny, nz, f64, f64, f64, f64, f64, f64, f64)
+
+    def codegen(context, builder, signature, args):
+        b, node_, nx_, ny_, nz_, ox_, oy_, oz_, ix_, iy_, iz_, t_max_ = args
+        i64 = ir.IntType(64)
+        vf = ir.VectorType(ir.FloatType(), 4)
+        vd = ir.VectorType(ir.DoubleType(), 4)
+        array = context.make_array(signature.args[0])(context, builder, value=b)
+        row = builder.mul(
+            context.cast(builder, node_, signature.args[1], types.int64),
+            builder.extract_value(array.strides, 0),
+        )
+        base = builder.gep(builder.bitcast(array.data, ir.IntType(8).as_pointer()), [row])
+
+        def splat(x):
+            v = builder.insert_element(ir.Constant(vd, ir.Undefined), x, ir.Constant(i64, 0))
+            return builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), 4), 0))
+
+        def load_row(offset_bytes):
+            ptr = builder.bitcast(builder.gep(base, [offset_bytes]), vf.as_pointer())
+            return builder.fpext(builder.load(ptr, align=4), vd)
+
+        def row_offset(start, scale, n, n_type):
+            # start + scale * n bytes: n (0 or 3) moves between the min and the max rows.
+            n64 = context.cast(builder, n, n_type, types.int64)
+            return builder.add(ir.Constant(i64, start), builder.mul(n64, ir.Constant(i64, scale)))
+
+        near = splat(ir.Constant(ir.DoubleType(), 0.0))
+        far = splat(t_max_)
+        axes = (
+            (nx_, signature.args[2], ox_, ix_, 0),
+            (ny_, signature.args[3], oy_, iy_, 16),
+            (nz_, signature.args[4], oz_, iz_, 32),
+        )
+        for n, n_type, o, inv, start in axes:
+            o_v = splat(o)
+            inv_v = splat(inv)
+            # near plane: row (axis + n), far plane: row (axis + 3 - n); rows are 16 bytes.
+            t = builder.fmul(builder.fsub(load_row(row_offset(start, 16, n, n_type)), o_v), inv_v)
+            near = builder.select(builder.fcmp_ordered(">", t, near), t, near)
+            t = builder.fmul(
+                builder.fsub(load_row(row_offset(start + 48, -16, n, n_type)), o_v), inv_v
+            )
+            far = builder.select(builder.fcmp_ordered("<", t, far), t, far)
+        widened = builder.fmul(far, splat(ir.Constant(ir.DoubleType(), SLAB_WIDEN)))
+        hit = builder.and_(
+            builder.fcmp_ordered("<=", near, widened),
+            builder.fcmp_ordered("<=", near, splat(t_max_)),
+        )
+        result = builder.select(hit, near, splat(ir.Constant(ir.DoubleType(), np.inf)))
+        lanes = [builder.extract_element(result, ir.Constant(i64, k)) for k in range(4)]
+        return context.make_tuple(builder, signature.return_type, lanes)
+
+    return sig, codegen
+
+
+@jit_inline
+def visit(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
+    """Distances to the four child boxes of wide node ``node`` (inf for a miss or an entry past
+    ``t_max``), sorted nearest first with the child references: ``(t0, c0, ..., t3, c3)``.
+    A box entered exactly at ``t_max`` counts: it may still hold a tie with a lower key."""
+    t0, t1, t2, t3 = _slab4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max)
+    c0 = child[node, 0]
+    c1 = child[node, 1]
+    c2 = child[node, 2]
+    c3 = child[node, 3]
+    # A sorting network of five compare-exchanges.
+    t0, c0, t1, c1 = nearer_first(t0, c0, t1, c1)
+    t2, c2, t3, c3 = nearer_first(t2, c2, t3, c3)
+    t0, c0, t2, c2 = nearer_first(t0, c0, t2, c2)
+    t1, c1, t3, c3 = nearer_first(t1, c1, t3, c3)
+    t1, c1, t2, c2 = nearer_first(t1, c1, t2, c2)
+    return t0, c0, t1, c1, t2, c2, t3, c3
+
+
+@jit_inline
+def push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3):
+    """Push the entered boxes other than the nearest, farthest first (so nearer ones pop
+    first); returns the new stack pointer. Writes one entry past the last push at most."""
+    stack_node[sp] = c3
+    stack_t[sp] = t3
+    sp += 1 if t3 < np.inf else 0
+    stack_node[sp] = c2
+    stack_t[sp] = t2
+    sp += 1 if t2 < np.inf else 0
+    stack_node[sp] = c1
+    stack_t[sp] = t1
+    sp += 1 if t1 < np.inf else 0
+    return sp
 
 
 @jit_inline
@@ -175,6 +294,23 @@ def closer(t, inst, prim, t_best, inst_best, prim_best):
 
 
 @jit_inline
+def enter_any(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max, stack_node, sp):
+    """For an any-hit traversal: the children of wide node ``node`` whose boxes the ray enters
+    before ``t_max``, in slot order; returns the first (``NO_ENTRY`` if none) and the stack
+    pointer after pushing the others."""
+    t0, t1, t2, t3 = _slab4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max)
+    entry = NO_ENTRY
+    for t, s in ((t0, 0), (t1, 1), (t2, 2), (t3, 3)):
+        if t < t_max:
+            if entry == NO_ENTRY:
+                entry = child[node, s]
+            else:
+                stack_node[sp] = child[node, s]
+                sp += 1
+    return entry, sp
+
+
+@jit_inline
 def blas_closest(
     node_bounds,
     node_child,
@@ -206,53 +342,43 @@ def blas_closest(
     ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
     cost = 0
     sp = sp0
-    node = root
+    entry = root
     while True:
-        cost += 1
-        c0 = node_child[node, 0]
-        c1 = node_child[node, 1]
-        t0 = slab(node_bounds, node, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit)
-        t1 = slab(node_bounds, node, 6, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit)
-        if t1 < t0:
-            c0, c1 = c1, c0
-            t0, t1 = t1, t0
-        next_node = -1
-        # Near child first: test a leaf now, descend into an interior node next. A box entered
-        # exactly at t_hit may still hold a tie with a lower key, hence <=.
-        for c, tc in ((c0, t0), (c1, t1)):
-            if tc <= t_hit and tc < np.inf:
-                if c < 0:
-                    v = -1 - c
-                    for j in range(v >> 3, (v >> 3) + (v & 7)):
-                        cost += 1
-                        t, b0, b1, b2 = intersect_triangle(
-                            tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
-                        )
-                        if t < np.inf and closer(t, inst, tri_prim[j], t_hit, h_inst, h_prim):
-                            t_hit = t
-                            h_inst = inst
-                            h_j = j
-                            h_prim = tri_prim[j]
-                            hb0 = b0
-                            hb1 = b1
-                            hb2 = b2
-                elif next_node < 0:
-                    next_node = c
-                else:
-                    stack_node[sp] = c
-                    stack_t[sp] = tc
-                    sp += 1
-        if next_node >= 0:
-            node = next_node
-            continue
-        # Pop the nearest pending node that can still hold a closer hit.
-        node = -1
+        if entry >= 0:
+            # An interior node: go on into the nearest box entered, keep the others.
+            cost += 1
+            t0, c0, t1, c1, t2, c2, t3, c3 = visit(
+                node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit
+            )
+            sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
+            if t0 < np.inf:
+                entry = c0
+                continue
+        else:
+            v = -1 - entry
+            for j in range(v >> 3, (v >> 3) + (v & 7)):
+                cost += 1
+                t, b0, b1, b2 = intersect_triangle(
+                    tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
+                )
+                if t < np.inf and closer(t, inst, tri_prim[j], t_hit, h_inst, h_prim):
+                    t_hit = t
+                    h_inst = inst
+                    h_j = j
+                    h_prim = tri_prim[j]
+                    hb0 = b0
+                    hb1 = b1
+                    hb2 = b2
+        # Pop the nearest pending box that can still hold a closer hit.
+        entry = 0
+        found = False
         while sp > sp0:
             sp -= 1
             if stack_t[sp] <= t_hit:
-                node = stack_node[sp]
+                entry = stack_node[sp]
+                found = True
                 break
-        if node < 0:
+        if not found:
             return t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost
 
 
@@ -266,28 +392,30 @@ def blas_occluded(node_bounds, node_child, tri_verts, root, o, d, t_max, stack_n
     ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
     cost = 0
     sp = sp0
-    node = root
+    entry = root
     while True:
-        cost += 1
-        for side in range(2):
-            c = node_child[node, side]
-            if slab(node_bounds, node, 6 * side, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max) < t_max:
-                if c < 0:
-                    v = -1 - c
-                    for j in range(v >> 3, (v >> 3) + (v & 7)):
-                        cost += 1
-                        t, _, _, _ = intersect_triangle(
-                            tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max
-                        )
-                        if t < t_max:
-                            return True, cost
-                else:
-                    stack_node[sp] = c
-                    sp += 1
+        if entry >= 0:
+            # An interior node: go on into the first box entered, keep the others.
+            cost += 1
+            entry, sp = enter_any(
+                node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max,
+                stack_node, sp,
+            )  # fmt: skip
+            if entry != NO_ENTRY:
+                continue
+        else:
+            v = -1 - entry
+            for j in range(v >> 3, (v >> 3) + (v & 7)):
+                cost += 1
+                t, _, _, _ = intersect_triangle(
+                    tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max
+                )
+                if t < t_max:
+                    return True, cost
         if sp == sp0:
             return False, cost
         sp -= 1
-        node = stack_node[sp]
+        entry = stack_node[sp]
 
 
 @jit_inline

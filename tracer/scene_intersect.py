@@ -13,14 +13,17 @@ import math
 import numpy as np
 
 from tracer.intersect import (
+    NO_ENTRY,
     NO_INSTANCE,
     OFFSET_ROUNDING_MARGIN,
     blas_closest,
     blas_occluded,
+    enter_any,
     geometric_normal,
     hit_point,
+    push_far,
     ray_setup,
-    slab,
+    visit,
 )
 from tracer.jit import jit_inline
 from tracer.scene_arrays import pick
@@ -51,7 +54,7 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
     Returns ``(k, j, t, b0, b1, b2, cost)``: instance ``k`` (-1 for a miss), the triangle's row
     ``j`` in the instance's pool, the distance, barycentrics and the work done.
 
-    The top level is walked with one stack holding both nodes and leaves; a leaf popped from it
+    The top level is walked with one stack holding both nodes and leaves; a leaf entered
     becomes the run of instances ``tlas_inst[q:q_end]`` to visit. A scene of one instance skips
     the top level.
     """
@@ -67,12 +70,10 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
     sp = 0
     q = 0
     q_end = 0
+    entry = 0  # the top-level root
     if s.tlas_inst.shape[0] == 1:
         q_end = 1
-    else:
-        stack_node[0] = 0
-        stack_t[0] = 0.0
-        sp = 1
+        entry = NO_ENTRY
     while True:
         if q < q_end:
             k = s.tlas_inst[q]
@@ -101,35 +102,30 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
             )
             cost += c_blas
             continue
+        if entry >= 0:
+            # A top-level node: go on into the nearest box entered, keep the others.
+            cost += 1
+            t0, c0, t1, c1, t2, c2, t3, c3 = visit(
+                s.tlas_bounds, s.tlas_child, entry, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_hit
+            )
+            sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
+            if t0 < np.inf:
+                entry = c0
+                continue
+        elif entry != NO_ENTRY:
+            q, q_end = _leaf_range(entry)
+            entry = NO_ENTRY
+            continue
         # Pop the nearest pending node or leaf that can still hold a closer hit.
-        node = 0
-        found = False
+        entry = NO_ENTRY
         while sp > 0:
             sp -= 1
             if stack_t[sp] <= t_hit:
-                node = stack_node[sp]
-                found = True
+                entry = stack_node[sp]
                 break
-        if not found:
+        if entry == NO_ENTRY:
             k_out = h_inst if h_inst != NO_INSTANCE else -1
             return k_out, h_j, t_hit, hb0, hb1, hb2, cost
-        if node < 0:
-            q, q_end = _leaf_range(node)
-            continue
-        # Visit a top-level node: push the far child, then the near one (popped first).
-        cost += 1
-        c0 = s.tlas_child[node, 0]
-        c1 = s.tlas_child[node, 1]
-        t0 = slab(s.tlas_bounds, node, 0, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_hit)
-        t1 = slab(s.tlas_bounds, node, 6, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_hit)
-        if t1 < t0:
-            c0, c1 = c1, c0
-            t0, t1 = t1, t0
-        for c, tc in ((c1, t1), (c0, t0)):
-            if tc <= t_hit and tc < np.inf:
-                stack_node[sp] = c
-                stack_t[sp] = tc
-                sp += 1
 
 
 @jit_inline
@@ -140,11 +136,10 @@ def scene_occluded(s, o, d, t_max, stack_node):
     sp = 0
     q = 0
     q_end = 0
+    entry = 0  # the top-level root
     if s.tlas_inst.shape[0] == 1:
         q_end = 1
-    else:
-        stack_node[0] = 0
-        sp = 1
+        entry = NO_ENTRY
     while True:
         if q < q_end:
             k = s.tlas_inst[q]
@@ -166,21 +161,21 @@ def scene_occluded(s, o, d, t_max, stack_node):
             if blocked:
                 return True, cost
             continue
-        if sp == 0:
-            return False, cost
-        sp -= 1
-        node = stack_node[sp]
-        if node < 0:
-            q, q_end = _leaf_range(node)
+        if entry == NO_ENTRY:
+            if sp == 0:
+                return False, cost
+            sp -= 1
+            entry = stack_node[sp]
+        if entry < 0:
+            q, q_end = _leaf_range(entry)
+            entry = NO_ENTRY
             continue
+        # A top-level node: go on into the first box entered, keep the others.
         cost += 1
-        for side in range(2):
-            t_box = slab(
-                s.tlas_bounds, node, 6 * side, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_max
-            )
-            if t_box < t_max:
-                stack_node[sp] = s.tlas_child[node, side]
-                sp += 1
+        entry, sp = enter_any(
+            s.tlas_bounds, s.tlas_child, entry, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_max,
+            stack_node, sp,
+        )  # fmt: skip
 
 
 @jit_inline

@@ -107,19 +107,20 @@ def check_canonical(c: bvh.CanonicalBVH, tri_verts: np.ndarray, prims: np.ndarra
 
 
 def traversal_stack_need(t: bvh.TraversalBVH) -> int:
-    """Peak stack entries of a traversal that hits every box: at a node, the pending siblings of
-    its ancestors plus its own interior children (the any-hit kernel pushes both, then pops one;
-    the closest-hit kernel pushes one fewer)."""
+    """Peak stack entries of a traversal that enters every box: at a node, the pending entries
+    of its ancestors plus its own children but the one it goes on into."""
     peak = 0
     frontier = np.array([0])
     pending = np.array([0])
     while frontier.size:
         child = t.node_child[frontier]
+        used = (child >= 0) | (((-1 - child) & 7) > 0)
+        k = used.sum(axis=1)
+        pending = pending + np.maximum(k - 1, 0)
+        peak = max(peak, int(pending.max()))
         inner = child >= 0
-        k = inner.sum(axis=1)
-        peak = max(peak, int((pending + k).max()))
         frontier = child[inner]
-        pending = np.repeat(pending + (k == 2), k)
+        pending = np.repeat(pending, inner.sum(axis=1))
     return peak
 
 
@@ -127,43 +128,51 @@ def check_traversal(t: bvh.TraversalBVH, c: bvh.CanonicalBVH, tri_verts, prims) 
     """Assert the traversal layout's invariants and that it matches the canonical tree."""
     n_int = t.node_bounds.shape[0]
     m = prims.shape[0]
-    assert t.node_bounds.shape == (n_int, 12) and t.node_bounds.dtype == np.float32
-    assert t.node_child.shape == (n_int, 2) and t.node_child.dtype == np.int32
+    w = bvh.WIDTH
+    assert t.node_bounds.shape == (n_int, 6 * w) and t.node_bounds.dtype == np.float32
+    assert t.node_child.shape == (n_int, w) and t.node_child.dtype == np.int32
     assert t.tri_verts.shape == (m, 9) and t.tri_verts.dtype == np.float32
     assert t.tri_prim.shape == (m,) and t.tri_prim.dtype == np.int32
     n_leaves = int((c.count > 0).sum())
-    assert n_int == max(1, c.count.shape[0] - n_leaves)
+    assert 1 <= n_int <= max(1, c.count.shape[0] - n_leaves)
     assert np.array_equal(np.sort(t.tri_prim), np.sort(prims)), "tri_prim does not hold `prims`"
     assert np.array_equal(t.tri_verts, tri_verts[t.tri_prim]), "leaf-order copy differs"
 
     ref = t.node_child.astype(np.int64)
-    boxes = t.node_bounds.reshape(n_int, 2, 2, 3)  # (node, side, min/max, xyz)
+    boxes = bvh.slot_boxes(t.node_bounds)  # (node, slot, min/max, xyz)
     inner = ref >= 0
     node_of = np.broadcast_to(np.arange(n_int)[:, None], ref.shape)
     assert (ref[inner] > node_of[inner]).all() and (ref[inner] < n_int).all()
     parents = np.bincount(ref[inner], minlength=n_int)
     assert parents[0] == 0 and (parents[1:] == 1).all(), "not a tree rooted at node 0"
 
-    # The box stored for an interior child contains both of that child's boxes.
+    # The box stored for an interior child contains all of that child's boxes.
     outer = boxes[inner]  # (K, min/max, xyz)
-    kid = boxes[ref[inner]]  # (K, side, min/max, xyz)
+    kid = boxes[ref[inner]]  # (K, slot, min/max, xyz)
     assert (outer[:, None, 0] <= kid[:, :, 0]).all() and (kid[:, :, 1] <= outer[:, None, 1]).all()
 
     v = -1 - ref[~inner]
     first, count = v >> bvh.LEAF_COUNT_BITS, v & ((1 << bvh.LEAF_COUNT_BITS) - 1)
     leaf_box = boxes[~inner]
     empty = count == 0
-    assert (leaf_box[empty, 0] > leaf_box[empty, 1]).all(), "empty leaves need inverted boxes"
+    assert (leaf_box[empty, 0] > leaf_box[empty, 1]).all(), "empty slots need inverted boxes"
+    assert (first[empty] == 0).all()
+    # Used slots come first; every node but a leaf root (or an empty tree's) has two or more.
+    used = ref != -1  # -1: an empty slot (no triangles, first 0)
+    assert (np.sort(~used, axis=1) == ~used).all(), "an empty slot before a used one"
     root_is_leaf = m == 0 or c.count[0] > 0
-    assert int(empty.sum()) == (2 if m == 0 else 1 if root_is_leaf else 0)
+    assert (used.sum(axis=1) >= 2).all() or (n_int == 1 and root_is_leaf)
     full = ~empty
     assert int(full.sum()) == n_leaves
+    assert int(used.sum()) == n_int - 1 + n_leaves, "slots are not the tree's nodes and leaves"
     if m:
         assert count.max() <= config.BVH_MAX_LEAF
         assert covers_once(first[full], count[full], m), "leaves do not partition triangles"
         lo, hi = tri_bounds(t.tri_verts, np.arange(m), first[full], count[full])
         assert (leaf_box[full, 0] <= lo).all() and (hi <= leaf_box[full, 1]).all()
-    assert traversal_stack_need(t) <= config.TRAVERSAL_STACK_SIZE
+    need = traversal_stack_need(t)
+    assert need == bvh.stack_need(t.node_child)
+    assert need <= bvh.MAX_STACK_NEED and 2 * need + 4 <= config.TRAVERSAL_STACK_SIZE
 
 
 def check_all(tri_verts: np.ndarray, prims=None) -> int:
@@ -210,15 +219,27 @@ def test_meshes(tris):
     check_all(tris)
 
 
+def test_collapse_fills_wide_nodes():
+    """On a mesh the wide tree uses most of its slots (nodes over two leaves keep two) and has
+    at most half as many nodes as the binary tree has interior nodes."""
+    tris = icosphere(4)
+    c = bvh.build(tris)
+    t = bvh.to_traversal(c, tris)
+    binary_interior = int((c.count == 0).sum())
+    used = (t.node_child != -1).sum(axis=1)
+    assert used.mean() >= 3.0, used.mean()
+    assert t.node_child.shape[0] <= 0.5 * binary_interior
+
+
 def test_one_triangle():
     """One triangle: a single leaf root, flattened into one node with an empty right side."""
     tris = np.array([[0, 0, 0, 1, 0, 0, 0, 1, 0]], np.float32)
     c = bvh.build(tris)
     assert c.count.tolist() == [1] and c.prim_order.tolist() == [0]
     t = bvh.to_traversal(c, tris)
-    assert t.node_child.shape == (1, 2)
+    assert t.node_child.shape == (1, bvh.WIDTH)
     assert bvh.decode_leaf(t.node_child[0, 0]) == (0, 1)
-    assert bvh.decode_leaf(t.node_child[0, 1]) == (0, 0)
+    assert [bvh.decode_leaf(x) for x in t.node_child[0, 1:]] == [(0, 0)] * (bvh.WIDTH - 1)
     check_all(tris)
 
 
@@ -229,7 +250,7 @@ def test_no_triangles():
     assert c.count.shape == (1,) and c.prim_order.shape == (0,)
     t = bvh.to_traversal(c, tris)
     assert t.tri_verts.shape == (0, 9)
-    assert [bvh.decode_leaf(x)[1] for x in t.node_child[0]] == [0, 0]
+    assert [bvh.decode_leaf(x)[1] for x in t.node_child[0]] == [0] * bvh.WIDTH
     check_all(tris)
 
 
@@ -327,10 +348,11 @@ def deep_stack_triangles(core: int) -> np.ndarray:
 
 @pytest.mark.slow
 def test_traversal_stack_bound_holds_for_crafted_input():
-    """config claims 64 stack entries always suffice; a crafted input needs more."""
+    """The traversal stack suffices for a crafted input that needs many entries (its tree may
+    be kept two-wide for that)."""
     tris = deep_stack_triangles(2_100_000)
     c = bvh.build(tris)
-    assert traversal_stack_need(bvh.to_traversal(c, tris)) <= config.TRAVERSAL_STACK_SIZE
+    assert traversal_stack_need(bvh.to_traversal(c, tris)) <= bvh.MAX_STACK_NEED
 
 
 @pytest.mark.slow
@@ -377,7 +399,7 @@ def _corrupt_child(c, t):
 
 
 def _corrupt_traversal_box(t_):
-    t_.node_bounds[0, 3] = t_.node_bounds[0, 0] - 1
+    t_.node_bounds[0, 12] = t_.node_bounds[0, 0] - 1  # slot 0: max x below min x
 
 
 def _corrupt_traversal_leaf(t_):

@@ -29,7 +29,7 @@ def check_tree(tree: bvh.TraversalBVH, triangles: np.ndarray) -> None:
     assert np.array_equal(np.sort(tree.tri_prim), np.arange(m))
     assert np.array_equal(tree.tri_verts, triangles[tree.tri_prim])
     child = tree.node_child.astype(np.int64)
-    boxes = tree.node_bounds.reshape(-1, 2, 2, 3)
+    boxes = bvh.slot_boxes(tree.node_bounds)  # (node, slot, min/max, xyz)
     inner = child >= 0
     node_of = np.broadcast_to(np.arange(child.shape[0])[:, None], child.shape)
     assert (child[inner] > node_of[inner]).all()

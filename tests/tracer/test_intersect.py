@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numba import njit
 
 from tests import naive
 from tests.helpers import SOUP_KINDS, box, icosphere, rays_at, soup, traversal
+from tracer import intersect
 from tracer.raycast import any_hits, closest_hits
 
 
@@ -364,3 +366,44 @@ def test_oracle_comparison_has_teeth():
     wrong.prim[i], wrong.t[i] = -1, np.inf
     with pytest.raises(AssertionError):
         naive.assert_closest_match(wrong, expected)
+
+
+@njit(cache=False, error_model="numpy")
+def _both_box_tests(bounds, origins, directions, t_max, vector, scalar):
+    for i in range(origins.shape[0]):
+        o = (origins[i, 0], origins[i, 1], origins[i, 2])
+        d = (directions[i, 0], directions[i, 1], directions[i, 2])
+        ix, iy, iz, nx, ny, nz, _, _, _, _, _, _, _, _, _ = intersect.ray_setup(o, d)
+        node = i % bounds.shape[0]
+        v = intersect._slab4(bounds, node, nx, ny, nz, o[0], o[1], o[2], ix, iy, iz, t_max[i])
+        for s in range(4):
+            vector[i, s] = v[s]
+            t = intersect.slab(bounds, node, s, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_max[i])
+            scalar[i, s] = t if t <= t_max[i] else np.inf
+
+
+def test_vector_box_test_equals_scalar():
+    """The four-box vector test gives bit for bit what the scalar slab test gives for each box
+    (with entries past ``t_max`` mapped to inf), on random boxes, empty (inverted) boxes, rays
+    with zero direction components of either sign, and origins exactly on box planes."""
+    rng = np.random.default_rng(11)
+    nodes, n = 64, 20_000
+    lo = rng.uniform(-1, 1, (nodes, 3, 4))
+    hi = lo + rng.uniform(0, 1, (nodes, 3, 4))
+    lo[::7, :, 1], hi[::7, :, 1] = np.inf, -np.inf  # empty slots
+    bounds = np.concatenate([lo, hi], axis=1).reshape(nodes, 24).astype(np.float32)
+    origins = rng.uniform(-2, 2, (n, 3))
+    node = np.arange(n) % nodes
+    centre = 0.5 * (lo + hi)[node, :, rng.integers(0, 4, n)]  # half the rays aim at a box
+    directions = np.where(rng.random((n, 1)) < 0.5, centre - origins, rng.normal(size=(n, 3)))
+    directions[~np.isfinite(directions)] = 1.0
+    directions[rng.random((n, 3)) < 0.1] = 0.0
+    directions[rng.random((n, 3)) < 0.05] = -0.0
+    directions[np.abs(directions).max(axis=1) == 0, 0] = 1.0
+    on_plane = rng.random(n) < 0.2  # origin on a bound plane of the ray's node
+    origins[on_plane, 0] = bounds[node[on_plane], 0]
+    t_max = np.where(rng.random(n) < 0.5, np.inf, rng.uniform(0, 3, n))
+    vector, scalar = np.empty((n, 4)), np.empty((n, 4))
+    _both_box_tests(bounds, origins, directions, t_max, vector, scalar)
+    assert np.array_equal(vector, scalar)
+    assert np.isfinite(vector).mean() > 0.05 and np.isinf(vector).mean() > 0.5  # both kinds

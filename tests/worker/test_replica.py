@@ -248,9 +248,9 @@ def test_refitted_bounds_contain_their_geometry(seed):
     refit = replica.current.meshes["blob"]
     assert refit.bvh.node_child is old.bvh.node_child  # same topology: refitted, not rebuilt
     t = refit.bvh
-    boxes = t.node_bounds.reshape(-1, 2, 2, 3)
+    boxes = bvh.slot_boxes(t.node_bounds)
     for n in range(t.node_child.shape[0]):
-        for side in range(2):
+        for side in range(bvh.WIDTH):
             c = t.node_child[n, side]
             box = boxes[n, side]
             if c >= 0:
