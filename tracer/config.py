@@ -22,8 +22,9 @@ BVH_MAX_TREE_DEPTH = 80
 """Deepest tree allowed. The builder keeps the depth at most ``BVH_MAX_BUILD_DEPTH`` + 28
 (index-median splits below that depth, at most 2**28 primitives): 76. ``bvh.build`` checks it."""
 TRAVERSAL_STACK_SIZE = 3 * BVH_MAX_TREE_DEPTH
-"""Entries on a traversal stack. A traversal holds at most one entry per tree level plus one;
-a scene traversal stacks a mesh's traversal on top of the top level's."""
+"""Entries on a traversal stack. A scene traversal stacks a mesh's traversal on top of the top
+level's; a 4-wide tree whose traversal could need more than its half (``bvh.MAX_STACK_NEED``)
+stays 2-wide, which needs at most one entry per level plus one."""
 
 # --- Rays ------------------------------------------------------------------------------------
 SHADOW_EPSILON = 1e-9

@@ -22,9 +22,9 @@ VOLATILE_POOL = 1
 
 class SceneArrays(NamedTuple):
     blas_bounds: tuple[np.ndarray, np.ndarray]
-    """float32 (N, 12) per pool: interior nodes, both child boxes (tracer.bvh layout)."""
+    """float32 (N, 24) per pool: interior nodes, their four child boxes (tracer.bvh layout)."""
     blas_child: tuple[np.ndarray, np.ndarray]
-    """int32 (N, 2) per pool: child references, pool-global node and triangle indices."""
+    """int32 (N, 4) per pool: child references, pool-global node and triangle indices."""
     tri_verts: tuple[np.ndarray, np.ndarray]
     """float32 (M, 9) per pool: object-space triangles in leaf order."""
     tri_prim: tuple[np.ndarray, np.ndarray]
@@ -46,9 +46,9 @@ class SceneArrays(NamedTuple):
     inst_rt: np.ndarray
     """float64 (I, 2): ``(c1, c0)`` of ``transforms.round_trip_bound`` per instance."""
     tlas_bounds: np.ndarray
-    """float32 (K, 12): the top-level BVH over instance world boxes."""
+    """float32 (K, 24): the top-level 4-wide BVH over instance world boxes."""
     tlas_child: np.ndarray
-    """int32 (K, 2): its child references; leaves index ``tlas_inst``."""
+    """int32 (K, 4): its child references; leaves index ``tlas_inst``."""
     tlas_inst: np.ndarray
     """int32 (I,): instance indices in top-level leaf order."""
     mat_albedo: np.ndarray
