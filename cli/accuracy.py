@@ -38,6 +38,7 @@ from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene
 from tracer.effects import EffectPlan, effect_plan
 from tracer.error_estimate import (
+    PARTS,
     estimate_rel_error,
     noise_floor,
     psnr,
@@ -93,23 +94,26 @@ class StudyOptions:
 
 @dataclass(frozen=True)
 class Config:
-    """One configuration of the sweep: settings changes and effects dropped from the plan."""
+    """One configuration of the sweep: settings changes, effects dropped from the plan and
+    sampling switches added to it."""
 
     name: str
     label: str
     changes: dict = field(default_factory=dict)
     drop: int = 0
     """Effect flags removed from the scene's plan (``tracer.effects``)."""
+    add: int = 0
+    """Kernel switches added to the plan (``tracer.effects.NO_MIS``)."""
 
     def settings(self, base: fmt.RenderSettings) -> fmt.RenderSettings:
         return fmt.override(base, **self.changes)
 
     def plan(self, scene: CompiledScene, settings: fmt.RenderSettings) -> EffectPlan:
         plan = effect_plan(scene, settings)
-        if not self.drop:
+        if not self.drop and not self.add:
             return plan
         reasons = {**plan.reasons, **{n: "dropped by the study" for n in names(self.drop)}}
-        return EffectPlan(plan.flags & ~self.drop, reasons)
+        return EffectPlan(plan.flags & ~self.drop | self.add, reasons)
 
 
 def names(flags: int) -> list[str]:
@@ -120,8 +124,8 @@ def names(flags: int) -> list[str]:
 def configurations(base: fmt.RenderSettings) -> list[Config]:
     """The sweep's configurations around the scene's own settings ``base`` (the ``path``
     configuration): path tracing at depths 1 to 16, without Russian roulette, with every effect
-    (no plan), with BSDF sampling only (no light samples, so no MIS); direct light; Whitted;
-    ambient occlusion."""
+    (no plan), with light samples but no MIS, with BSDF sampling only (no light samples, so no
+    MIS); direct light; Whitted; ambient occlusion."""
     depth = base.max_depth
     configs = [Config(DEFAULT_CONFIG, f"path, NEE + MIS, depth {depth} (the scene's)")]
     configs += [
@@ -134,6 +138,7 @@ def configurations(base: fmt.RenderSettings) -> list[Config]:
     configs += [
         Config("path-no-rr", "path, no Russian roulette", {"rr_depth": depth}),
         Config("path-no-plan", "path, every effect (no effect plan)", {"effect_plan": False}),
+        Config("path-no-mis", "path, light samples without MIS", add=effects.NO_MIS),
         Config(
             "path-bsdf",
             "path, BSDF sampling only (no light samples, no MIS)",
@@ -462,33 +467,35 @@ def calibration(
     on_samples: Callable[[int], None],
 ) -> list[dict]:
     """The online estimate against the true error: the reference's own settings (so the
-    render is unbiased against it) with another seed, two independent halves A and B that
-    double together; at each total spp the estimate from A and B and the true relative error
-    of their mean (the reference's noise floor subtracted)."""
+    render is unbiased against it) with another seed, ``PARTS`` independent parts that double
+    together, as a progressive render's waves do; at each total spp the estimate from the parts
+    (None where it says the error is not estimable yet) and the true relative error of their
+    mean (the reference's noise floor subtracted)."""
     settings = fmt.override(ref.settings, seed=options.seed + 1)
-    sums = [np.zeros((camera.height, camera.width, 3)) for _ in range(2)]
-    half = 0
+    sums = np.zeros((PARTS, camera.height, camera.width, 3))
+    per_part = 0
     records = []
-    for level in spp_levels(options.max_spp)[1:]:
-        n = level // 2 - half
-        for k in range(2):
-            start = 2 * half + k * n
+    for level in spp_levels(options.max_spp):
+        if level < PARTS:
+            continue
+        n = level // PARTS - per_part
+        for k in range(PARTS):
             rgb, _ = render_image(
                 scene,
                 camera,
                 fmt.override(settings, spp=n),
-                sample_start=start,
+                sample_start=PARTS * per_part + k * n,
                 threads=options.threads,
             )
             sums[k] += rgb.astype(np.float64) * n
             on_samples(n)
-        half += n
-        a, b = sums[0] / half, sums[1] / half
-        true_mse = rel_mse(0.5 * (a + b), ref.mean) - floor
+        per_part += n
+        parts = sums / per_part
+        true_mse = rel_mse(parts.mean(axis=0), ref.mean) - floor
         records.append(
             {
                 "spp": level,
-                "estimated": estimate_rel_error(a, b),
+                "estimated": estimate_rel_error(parts),
                 "true": math.sqrt(max(true_mse, 0.0)),
             }
         )
@@ -507,7 +514,7 @@ def planned_spp(options: StudyOptions, configs: int, own_reference_needed: bool)
     """Samples per pixel a scene's study renders (the progress bar's total)."""
     reference = options.reference_factor * options.max_spp if own_reference_needed else 0
     effect = len(EFFECT_STAGES) * options.repeats * options.effect_spp
-    return reference + configs * options.max_spp + effect + options.max_spp - 2
+    return reference + configs * options.max_spp + effect + options.max_spp
 
 
 def study_scene(

@@ -45,6 +45,12 @@ LIGHT_SAMPLES = 1 << 11
 TEXTURES = 1 << 12
 """Base-colour texture lookups where rays hit textured materials."""
 
+NO_MIS = 1 << 13
+"""Not an effect, and never in a plan this module makes: a sampling switch for the accuracy
+study (``cli/accuracy.py``), set on an explicit plan. The path tracer then samples lights
+without MIS: light samples alone for direct light, and emitters that BSDF-sampled rays hit
+count only after delta bounces and for camera rays. The same image in expectation, noisier."""
+
 EFFECTS = {
     "area_lights": AREA_LIGHTS,
     "point_lights": POINT_LIGHTS,
