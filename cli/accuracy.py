@@ -373,25 +373,32 @@ def sweep(
 
 
 EFFECT_STAGES = (
-    ("diffuse", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS),
-    ("diffuse + shadows", "whitted", effects.MATERIAL_EFFECTS),
-    ("diffuse + reflection, refraction", "whitted", effects.SHADOWS),
-    ("diffuse + shadows + reflection, refraction", "whitted", 0),
-    ("all effects", "path", 0),
+    ("diffuse", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS, False),
+    ("diffuse, material build", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS, True),
+    ("diffuse + shadows", "whitted", effects.MATERIAL_EFFECTS, True),
+    ("diffuse + reflection, refraction", "whitted", effects.SHADOWS, True),
+    ("diffuse + shadows + reflection, refraction", "whitted", 0, True),
+    ("all effects", "path", 0, True),
 )
 """Reiter's eq. 5.1 stages: (name, integrator, effects dropped from the plan the integrator
-gets). The ``whitted`` stages are Reiter's own ray tracer (direct light, recursion through
-mirrors and glass); without material effects every surface is Lambertian. ``all effects`` is
-the path tracer, so the indirect part is what path tracing adds to Whitted's with every
-effect."""
+gets, whether it runs in the scene's build of the kernel). The ``whitted`` stages are Reiter's
+own ray tracer (direct light, recursion through mirrors and glass); without material effects
+every surface is Lambertian. ``all effects`` is the path tracer, so the indirect part is what
+path tracing adds to Whitted's with every effect. A scene with material effects runs in the
+kernel build with the material dispatch (``tracer.integrator.kernel_for``), where every step
+costs more than in the build without it; Reiter's renderer switched effects at run time, in
+one build, so every stage but ``diffuse`` runs in the scene's build
+(``tracer.effects.MATERIAL_BUILD``), and the build's own cost is a part of its own."""
 
 
 def effect_parts(median: dict[str, float]) -> dict[str, float]:
-    """Reiter's eq. 5.1 from the stages' median seconds: shadows and reflection/refraction
-    each added to diffuse alone, and indirect light added to Whitted with every effect."""
-    d = median["diffuse"]
+    """Reiter's eq. 5.1 from the stages' median seconds: the scene's kernel build, shadows and
+    reflection/refraction each added to diffuse alone in that build, and indirect light added
+    to Whitted with every effect."""
+    d = median["diffuse, material build"]
     return {
-        "diffuse": d,
+        "diffuse": median["diffuse"],
+        "material build": d - median["diffuse"],
         "shadows": median["diffuse + shadows"] - d,
         "reflection, refraction": median["diffuse + reflection, refraction"] - d,
         "indirect": median["all effects"] - median["diffuse + shadows + reflection, refraction"],
@@ -414,16 +421,19 @@ def effect_costs(
     accuracy."""
     threads = options.threads or default_threads()
     stages = []
-    for name, integrator, drop in EFFECT_STAGES:
+    scene_plan = effect_plan(scene, base)
+    build = effects.MATERIAL_BUILD if scene_plan.flags & effects.MATERIAL_EFFECTS else 0
+    for name, integrator, drop, scene_build in EFFECT_STAGES:
         settings = fmt.override(base, integrator=integrator, spp=options.effect_spp)
-        plan = Config(name, name, drop=drop).plan(scene, settings)
+        plan = Config(name, name, drop=drop, add=build if scene_build else 0).plan(scene, settings)
         tiny = fmt.override(camera, width=1, height=1)
         render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=threads)
         stages.append((name, settings, plan, np.zeros((camera.height, camera.width, 3)), []))
+    work = dict.fromkeys((name for name, *_ in stages), 0)
     for round_index in range(options.repeats):
-        for _, settings, plan, total, seconds in stages:
+        for name, settings, plan, total, seconds in stages:
             with RenderClock(threads) as clock:
-                rgb, _ = render_image(
+                rgb, cost = render_image(
                     scene,
                     camera,
                     settings,
@@ -432,6 +442,7 @@ def effect_costs(
                     plan=plan,
                 )
             seconds.append(clock.seconds)
+            work[name] += int(cost.sum())
             total += rgb
             on_samples(options.effect_spp)
     median = {name: float(np.median(seconds)) for name, _, _, _, seconds in stages}
@@ -447,6 +458,7 @@ def effect_costs(
                 "effects": plan.names(),
                 "seconds": seconds,
                 "median_seconds": median[name],
+                "work": work[name] / options.repeats,
                 "rel_mse": rel_mse(total / options.repeats, ref.mean) - floor,
             }
             for name, settings, plan, total, seconds in stages

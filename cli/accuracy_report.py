@@ -400,10 +400,10 @@ def spp_ranges(levels: list[int]) -> str:
 
 
 def effect_summary(results: dict) -> list[str]:
+    parts = list(next(iter(results["scenes"].values()))["effects"]["parts"])
     lines = [
-        "| scene | diffuse | shadows | reflection, refraction | indirect | sum of parts "
-        "| all effects (measured) | sum / measured |",
-        "|---|---|---|---|---|---|---|---|",
+        f"| scene | {' | '.join(parts)} | sum of parts | all effects (measured) | sum / measured |",
+        "|---|" + "---|" * (len(parts) + 3),
     ]
     for name, scene in results["scenes"].items():
         costs = scene["effects"]
@@ -453,15 +453,16 @@ def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
     lines += [
         "",
         f"Effect costs ({costs['spp']} spp, median of {costs['repeats']} interleaved rounds; "
-        "relative MSE of each stage's image over all rounds):",
+        "work per round in millions of BVH node visits and triangle tests; relative MSE of "
+        "each stage's image over all rounds):",
         "",
-        "| stage | integrator | seconds | relMSE |",
-        "|---|---|---|---|",
+        "| stage | integrator | seconds | work (M) | relMSE |",
+        "|---|---|---|---|---|",
     ]
     for stage in costs["stages"]:
         lines.append(
             f"| {stage['name']} | {stage['integrator']} | {seconds_text(stage['median_seconds'])} "
-            f"| {stage['rel_mse']:.2e} |"
+            f"| {stage['work'] / 1e6:.1f} | {stage['rel_mse']:.2e} |"
         )
     lines.append("")
     return lines

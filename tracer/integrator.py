@@ -366,8 +366,9 @@ render_pixels_all = KERNELS[(True, True)]
 
 def kernel_for(plan: int):
     """The build of the path kernel that a plan needs: with the material dispatch if it has a
-    material effect, with the point/spot/sun/sky code if it has one of those lights."""
-    materials = (plan & effects.MATERIAL_EFFECTS) != 0
+    material effect (or the ``effects.MATERIAL_BUILD`` switch), with the point/spot/sun/sky
+    code if it has one of those lights."""
+    materials = (plan & (effects.MATERIAL_EFFECTS | effects.MATERIAL_BUILD)) != 0
     lights = (plan & (effects.POINT_LIGHTS | effects.SUN | effects.SKY)) != 0
     return KERNELS[(materials, lights)]
 

@@ -104,6 +104,20 @@ def test_path_without_mis_under_a_sky():
         assert np.all(np.abs(mean - 1.0) < 4 * se + 1e-6), (flags, mean, se)
 
 
+def test_material_build_switch_changes_only_the_build(cornell):
+    """``effects.MATERIAL_BUILD`` runs a Lambertian plan in the kernel build with the material
+    dispatch: another kernel, the same pixels bit for bit."""
+    scene, camera = cornell
+    settings = override(scene.render, spp=2)
+    plan = effect_plan(scene, settings)
+    assert not plan.flags & effects.MATERIAL_EFFECTS
+    switched = EffectPlan(plan.flags | effects.MATERIAL_BUILD, {})
+    assert integrator.kernel_for(switched.flags) is not integrator.kernel_for(plan.flags)
+    light = render_image(scene, camera, settings, plan=plan)[0]
+    general = render_image(scene, camera, settings, plan=switched)[0]
+    assert light.tobytes() == general.tobytes()
+
+
 def test_a_missing_strategy_is_caught(cornell):
     """Negative control: BSDF sampling without its emission hits (light samples switched off,
     and the emission of hit lights only seen directly) loses the direct light and is rejected."""
