@@ -38,6 +38,7 @@ from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene
 from tracer.effects import EffectPlan, effect_plan
 from tracer.error_estimate import (
+    PARTS,
     estimate_rel_error,
     noise_floor,
     psnr,
@@ -93,23 +94,26 @@ class StudyOptions:
 
 @dataclass(frozen=True)
 class Config:
-    """One configuration of the sweep: settings changes and effects dropped from the plan."""
+    """One configuration of the sweep: settings changes, effects dropped from the plan and
+    sampling switches added to it."""
 
     name: str
     label: str
     changes: dict = field(default_factory=dict)
     drop: int = 0
     """Effect flags removed from the scene's plan (``tracer.effects``)."""
+    add: int = 0
+    """Kernel switches added to the plan (``tracer.effects.NO_MIS``)."""
 
     def settings(self, base: fmt.RenderSettings) -> fmt.RenderSettings:
         return fmt.override(base, **self.changes)
 
     def plan(self, scene: CompiledScene, settings: fmt.RenderSettings) -> EffectPlan:
         plan = effect_plan(scene, settings)
-        if not self.drop:
+        if not self.drop and not self.add:
             return plan
         reasons = {**plan.reasons, **{n: "dropped by the study" for n in names(self.drop)}}
-        return EffectPlan(plan.flags & ~self.drop, reasons)
+        return EffectPlan(plan.flags & ~self.drop | self.add, reasons)
 
 
 def names(flags: int) -> list[str]:
@@ -120,8 +124,8 @@ def names(flags: int) -> list[str]:
 def configurations(base: fmt.RenderSettings) -> list[Config]:
     """The sweep's configurations around the scene's own settings ``base`` (the ``path``
     configuration): path tracing at depths 1 to 16, without Russian roulette, with every effect
-    (no plan), with BSDF sampling only (no light samples, so no MIS); direct light; Whitted;
-    ambient occlusion."""
+    (no plan), with light samples but no MIS, with BSDF sampling only (no light samples, so no
+    MIS); direct light; Whitted; ambient occlusion."""
     depth = base.max_depth
     configs = [Config(DEFAULT_CONFIG, f"path, NEE + MIS, depth {depth} (the scene's)")]
     configs += [
@@ -134,6 +138,7 @@ def configurations(base: fmt.RenderSettings) -> list[Config]:
     configs += [
         Config("path-no-rr", "path, no Russian roulette", {"rr_depth": depth}),
         Config("path-no-plan", "path, every effect (no effect plan)", {"effect_plan": False}),
+        Config("path-no-mis", "path, light samples without MIS", add=effects.NO_MIS),
         Config(
             "path-bsdf",
             "path, BSDF sampling only (no light samples, no MIS)",
@@ -368,25 +373,32 @@ def sweep(
 
 
 EFFECT_STAGES = (
-    ("diffuse", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS),
-    ("diffuse + shadows", "whitted", effects.MATERIAL_EFFECTS),
-    ("diffuse + reflection, refraction", "whitted", effects.SHADOWS),
-    ("diffuse + shadows + reflection, refraction", "whitted", 0),
-    ("all effects", "path", 0),
+    ("diffuse", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS, False),
+    ("diffuse, material build", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS, True),
+    ("diffuse + shadows", "whitted", effects.MATERIAL_EFFECTS, True),
+    ("diffuse + reflection, refraction", "whitted", effects.SHADOWS, True),
+    ("diffuse + shadows + reflection, refraction", "whitted", 0, True),
+    ("all effects", "path", 0, True),
 )
 """Reiter's eq. 5.1 stages: (name, integrator, effects dropped from the plan the integrator
-gets). The ``whitted`` stages are Reiter's own ray tracer (direct light, recursion through
-mirrors and glass); without material effects every surface is Lambertian. ``all effects`` is
-the path tracer, so the indirect part is what path tracing adds to Whitted's with every
-effect."""
+gets, whether it runs in the scene's build of the kernel). The ``whitted`` stages are Reiter's
+own ray tracer (direct light, recursion through mirrors and glass); without material effects
+every surface is Lambertian. ``all effects`` is the path tracer, so the indirect part is what
+path tracing adds to Whitted's with every effect. A scene with material effects runs in the
+kernel build with the material dispatch (``tracer.integrator.kernel_for``), where every step
+costs more than in the build without it; Reiter's renderer switched effects at run time, in
+one build, so every stage but ``diffuse`` runs in the scene's build
+(``tracer.effects.MATERIAL_BUILD``), and the build's own cost is a part of its own."""
 
 
 def effect_parts(median: dict[str, float]) -> dict[str, float]:
-    """Reiter's eq. 5.1 from the stages' median seconds: shadows and reflection/refraction
-    each added to diffuse alone, and indirect light added to Whitted with every effect."""
-    d = median["diffuse"]
+    """Reiter's eq. 5.1 from the stages' median seconds: the scene's kernel build, shadows and
+    reflection/refraction each added to diffuse alone in that build, and indirect light added
+    to Whitted with every effect."""
+    d = median["diffuse, material build"]
     return {
-        "diffuse": d,
+        "diffuse": median["diffuse"],
+        "material build": d - median["diffuse"],
         "shadows": median["diffuse + shadows"] - d,
         "reflection, refraction": median["diffuse + reflection, refraction"] - d,
         "indirect": median["all effects"] - median["diffuse + shadows + reflection, refraction"],
@@ -409,16 +421,19 @@ def effect_costs(
     accuracy."""
     threads = options.threads or default_threads()
     stages = []
-    for name, integrator, drop in EFFECT_STAGES:
+    scene_plan = effect_plan(scene, base)
+    build = effects.MATERIAL_BUILD if scene_plan.flags & effects.MATERIAL_EFFECTS else 0
+    for name, integrator, drop, scene_build in EFFECT_STAGES:
         settings = fmt.override(base, integrator=integrator, spp=options.effect_spp)
-        plan = Config(name, name, drop=drop).plan(scene, settings)
+        plan = Config(name, name, drop=drop, add=build if scene_build else 0).plan(scene, settings)
         tiny = fmt.override(camera, width=1, height=1)
         render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=threads)
         stages.append((name, settings, plan, np.zeros((camera.height, camera.width, 3)), []))
+    work = dict.fromkeys((name for name, *_ in stages), 0)
     for round_index in range(options.repeats):
-        for _, settings, plan, total, seconds in stages:
+        for name, settings, plan, total, seconds in stages:
             with RenderClock(threads) as clock:
-                rgb, _ = render_image(
+                rgb, cost = render_image(
                     scene,
                     camera,
                     settings,
@@ -427,6 +442,7 @@ def effect_costs(
                     plan=plan,
                 )
             seconds.append(clock.seconds)
+            work[name] += int(cost.sum())
             total += rgb
             on_samples(options.effect_spp)
     median = {name: float(np.median(seconds)) for name, _, _, _, seconds in stages}
@@ -442,6 +458,7 @@ def effect_costs(
                 "effects": plan.names(),
                 "seconds": seconds,
                 "median_seconds": median[name],
+                "work": work[name] / options.repeats,
                 "rel_mse": rel_mse(total / options.repeats, ref.mean) - floor,
             }
             for name, settings, plan, total, seconds in stages
@@ -462,33 +479,35 @@ def calibration(
     on_samples: Callable[[int], None],
 ) -> list[dict]:
     """The online estimate against the true error: the reference's own settings (so the
-    render is unbiased against it) with another seed, two independent halves A and B that
-    double together; at each total spp the estimate from A and B and the true relative error
-    of their mean (the reference's noise floor subtracted)."""
+    render is unbiased against it) with another seed, ``PARTS`` independent parts that double
+    together, as a progressive render's waves do; at each total spp the estimate from the parts
+    (None where it says the error is not estimable yet) and the true relative error of their
+    mean (the reference's noise floor subtracted)."""
     settings = fmt.override(ref.settings, seed=options.seed + 1)
-    sums = [np.zeros((camera.height, camera.width, 3)) for _ in range(2)]
-    half = 0
+    sums = np.zeros((PARTS, camera.height, camera.width, 3))
+    per_part = 0
     records = []
-    for level in spp_levels(options.max_spp)[1:]:
-        n = level // 2 - half
-        for k in range(2):
-            start = 2 * half + k * n
+    for level in spp_levels(options.max_spp):
+        if level < PARTS:
+            continue
+        n = level // PARTS - per_part
+        for k in range(PARTS):
             rgb, _ = render_image(
                 scene,
                 camera,
                 fmt.override(settings, spp=n),
-                sample_start=start,
+                sample_start=PARTS * per_part + k * n,
                 threads=options.threads,
             )
             sums[k] += rgb.astype(np.float64) * n
             on_samples(n)
-        half += n
-        a, b = sums[0] / half, sums[1] / half
-        true_mse = rel_mse(0.5 * (a + b), ref.mean) - floor
+        per_part += n
+        parts = sums / per_part
+        true_mse = rel_mse(parts.mean(axis=0), ref.mean) - floor
         records.append(
             {
                 "spp": level,
-                "estimated": estimate_rel_error(a, b),
+                "estimated": estimate_rel_error(parts),
                 "true": math.sqrt(max(true_mse, 0.0)),
             }
         )
@@ -507,7 +526,7 @@ def planned_spp(options: StudyOptions, configs: int, own_reference_needed: bool)
     """Samples per pixel a scene's study renders (the progress bar's total)."""
     reference = options.reference_factor * options.max_spp if own_reference_needed else 0
     effect = len(EFFECT_STAGES) * options.repeats * options.effect_spp
-    return reference + configs * options.max_spp + effect + options.max_spp - 2
+    return reference + configs * options.max_spp + effect + options.max_spp
 
 
 def study_scene(

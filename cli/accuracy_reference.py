@@ -10,7 +10,9 @@ rendered with the scene's own render settings.
 Otherwise the reference is our own path tracer with every effect, ``max_depth``
 ``REFERENCE_DEPTH`` and a seed no sweep uses, in ``passes`` independent passes over disjoint
 sample ranges: their mean is the reference and their spread gives its variance. It is cached
-under a key that hashes the scene's files, the camera and the settings.
+under a key that hashes the scene's files, the camera, the settings and the tracer's code (the
+hash ``tracer.numba_cache`` keys compiled kernels by), so a changed renderer never meets a
+reference it made before the change.
 """
 
 import hashlib
@@ -24,6 +26,7 @@ import numpy as np
 
 from tracer import scene_format as fmt
 from tracer.compile import CompiledScene
+from tracer.numba_cache import source_digest
 from tracer.render import render_image
 
 REFERENCE_DEPTH = 64
@@ -133,8 +136,8 @@ def reference_settings(settings: fmt.RenderSettings, seed: int) -> fmt.RenderSet
 def cache_key(
     folder: Path, camera: fmt.Camera, settings: fmt.RenderSettings, spp: int, passes: int
 ) -> str:
-    """A hash of everything our reference depends on besides the tracer's code: every file of
-    the scene's folder, the camera, the settings and the sample counts."""
+    """A hash of everything our reference depends on: every file of the scene's folder, the
+    camera, the settings, the sample counts and the tracer's code (``tracer/*.py``)."""
     digest = hashlib.sha256()
     for path in sorted(p for p in folder.rglob("*") if p.is_file()):
         if path.suffix == ".npy":  # references themselves
@@ -147,6 +150,7 @@ def cache_key(
         "spp": spp,
         "passes": passes,
         "version": CACHE_VERSION,
+        "tracer": source_digest(),
     }
     digest.update(json.dumps(record, sort_keys=True).encode())
     return digest.hexdigest()[:16]

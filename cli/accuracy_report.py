@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from cli.accuracy import DEFAULT_CONFIG, TARGETS
-from tracer.error_estimate import to_display
+from tracer.error_estimate import PARTS, to_display
 
 REPORT_START = "<!-- accuracy-report:start -->"
 REPORT_END = "<!-- accuracy-report:end -->"
@@ -189,18 +189,27 @@ def crop_box(reference: np.ndarray) -> tuple[int, int, int, int]:
 
 def calibration_plot(results: dict, path: Path) -> Path:
     """Estimated against true relative error for every scene and spp, with y = x and the
-    +-30% band."""
+    +-30% band; where the estimate said "not estimable yet", a cross on the bottom edge at the
+    true error."""
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 5.5))
-    values = []
+    values = [
+        v
+        for scene in results["scenes"].values()
+        for r in scene["calibration"]
+        for v in (r["true"], r["estimated"])
+        if v
+    ]
+    lo, hi = min(values) / 1.5, max(values) * 1.5
     for name, scene in results["scenes"].items():
-        true = [r["true"] for r in scene["calibration"]]
-        est = [r["estimated"] for r in scene["calibration"]]
-        values += true + est
-        ax.plot(true, est, marker="o", markersize=4, linestyle="-", linewidth=0.8, label=name)
-    positive = [v for v in values if v > 0]
-    lo, hi = min(positive) / 1.5, max(positive) * 1.5
+        given = [r for r in scene["calibration"] if r["estimated"] is not None]
+        (line,) = ax.plot([r["true"] for r in given], [r["estimated"] for r in given],
+                          marker="o", markersize=4, linestyle="-", linewidth=0.8,
+                          label=name)  # fmt: skip
+        missing = [r["true"] for r in scene["calibration"] if r["estimated"] is None]
+        ax.plot(missing, [lo * 1.15] * len(missing), marker="x", linestyle="none",
+                color=line.get_color(), clip_on=False)  # fmt: skip
     line = np.geomspace(lo, hi, 10)
     ax.plot(line, line, "k-", linewidth=1, label="estimate = true")
     ax.fill_between(line, line * (1 - CALIBRATION_BAND), line * (1 + CALIBRATION_BAND),
@@ -210,8 +219,8 @@ def calibration_plot(results: dict, path: Path) -> Path:
     ax.set_xlim(lo, hi)
     ax.set_ylim(lo, hi)
     ax.set_xlabel("true relative error (against the reference)")
-    ax.set_ylabel("estimated relative error (two half buffers)")
-    ax.set_title("Calibration of the online error estimate (2 to max spp)")
+    ax.set_ylabel("estimated relative error (x: not estimable yet)")
+    ax.set_title(f"Calibration of the online error estimate ({PARTS} parts, 4 to max spp)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -327,50 +336,74 @@ def markdown(results: dict, image_dir: str, command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def within_band(record: dict) -> bool:
+    """Whether a calibration record's estimate is within the band of its true error."""
+    return record["true"] > 0 and abs(record["estimated"] / record["true"] - 1) <= CALIBRATION_BAND
+
+
 def calibration_section(results: dict, image_dir: str) -> list[str]:
     rows = []
-    ratios_all = []
+    records = []
     for name, scene in results["scenes"].items():
-        ratios = [r["estimated"] / r["true"] for r in scene["calibration"] if r["true"] > 0]
-        ratios_all += ratios
-        inside = sum(abs(r - 1) <= CALIBRATION_BAND for r in ratios)
+        given = [r for r in scene["calibration"] if r["estimated"] is not None and r["true"] > 0]
+        missing = [r["spp"] for r in scene["calibration"] if r["estimated"] is None]
+        records += scene["calibration"]
+        ratios = [r["estimated"] / r["true"] for r in given]
         spp = [r["spp"] for r in scene["calibration"]]
-        rows.append(
-            f"| {name} | {spp[0]}-{spp[-1]} | {min(ratios):.2f} | {np.median(ratios):.2f} | "
-            f"{max(ratios):.2f} | {inside}/{len(ratios)} |"
+        cells = (
+            f"{min(ratios):.2f} | {np.median(ratios):.2f} | {max(ratios):.2f}"
+            if ratios
+            else "- | - | -"
         )
-    inside_all = sum(abs(r - 1) <= CALIBRATION_BAND for r in ratios_all)
-    records = [r for scene in results["scenes"].values() for r in scene["calibration"]]
-
-    def inside(selected: list[dict]) -> str:
-        good = sum(abs(r["estimated"] / r["true"] - 1) <= CALIBRATION_BAND for r in selected)
-        return f"{good} of {len(selected)}"
-
-    low = [r for r in records if 0 < r["true"] <= 0.1]
-    many = [r for r in records if r["spp"] >= 64 and r["true"] > 0]
-    lowest = min(r["estimated"] / r["true"] for r in records if r["true"] > 0)
+        rows.append(
+            f"| {name} | {spp[0]}-{spp[-1]} | {cells} | "
+            f"{sum(map(within_band, given))}/{len(given)} | {spp_ranges(missing)} |"
+        )
+    given = [r for r in records if r["estimated"] is not None and r["true"] > 0]
+    missing = [r for r in records if r["estimated"] is None]
+    low = [r for r in given if r["true"] <= 0.1]
+    ratios = [r["estimated"] / r["true"] for r in given]
+    missing_true = [r["true"] for r in missing]
+    missing_text = (
+        f"For the other {len(missing)} it said *not estimable yet* (true error "
+        f"{min(missing_true):.0%} to {max(missing_true):.0%})."
+        if missing
+        else "It gave an estimate at every level."
+    )
     return [
         "### Calibration of the online error estimate",
         "",
         f"![calibration]({image_dir}/calibration.png)",
         "",
-        "Estimated relative error (from two half buffers, no reference) over the true one "
-        "(against the reference, its noise floor removed), for renders with the reference's own "
-        f"settings at every spp from 2 up: {inside_all} of {len(ratios_all)} within +-30%; "
-        f"{inside(low)} where the true error is at most 10%; {inside(many)} from 64 spp. "
-        f"The lowest ratio is {lowest:.2f}.",
+        f"Estimated relative error (from {PARTS} independent parts, no reference) over the "
+        "true one (against the reference, its noise floor removed), for renders with the "
+        f"reference's own settings at every spp from {PARTS} up, {len(records)} levels in all. "
+        f"Where it gave an estimate ({len(given)} levels): {sum(map(within_band, given))} of "
+        f"{len(given)} within +-30%, {sum(map(within_band, low))} of {len(low)} where the true "
+        f"error is at most 10%; ratios {min(ratios):.2f} to {max(ratios):.2f}. {missing_text}",
         "",
-        "| scene | spp | est/true min | median | max | within +-30% |",
-        "|---|---|---|---|---|---|",
+        "| scene | spp | est/true min | median | max | within +-30% | not estimable at spp |",
+        "|---|---|---|---|---|---|---|",
         *rows,
     ]
 
 
+def spp_ranges(levels: list[int]) -> str:
+    """Doubling spp levels as runs: ``4-32, 256``; ``-`` for none."""
+    runs: list[list[int]] = []
+    for level in levels:
+        if runs and level == 2 * runs[-1][-1]:
+            runs[-1].append(level)
+        else:
+            runs.append([level])
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}" for r in runs) or "-"
+
+
 def effect_summary(results: dict) -> list[str]:
+    parts = list(next(iter(results["scenes"].values()))["effects"]["parts"])
     lines = [
-        "| scene | diffuse | shadows | reflection, refraction | indirect | sum of parts "
-        "| all effects (measured) | sum / measured |",
-        "|---|---|---|---|---|---|---|---|",
+        f"| scene | {' | '.join(parts)} | sum of parts | all effects (measured) | sum / measured |",
+        "|---|" + "---|" * (len(parts) + 3),
     ]
     for name, scene in results["scenes"].items():
         costs = scene["effects"]
@@ -420,15 +453,16 @@ def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
     lines += [
         "",
         f"Effect costs ({costs['spp']} spp, median of {costs['repeats']} interleaved rounds; "
-        "relative MSE of each stage's image over all rounds):",
+        "work per round in millions of BVH node visits and triangle tests; relative MSE of "
+        "each stage's image over all rounds):",
         "",
-        "| stage | integrator | seconds | relMSE |",
-        "|---|---|---|---|",
+        "| stage | integrator | seconds | work (M) | relMSE |",
+        "|---|---|---|---|---|",
     ]
     for stage in costs["stages"]:
         lines.append(
             f"| {stage['name']} | {stage['integrator']} | {seconds_text(stage['median_seconds'])} "
-            f"| {stage['rel_mse']:.2e} |"
+            f"| {stage['work'] / 1e6:.1f} | {stage['rel_mse']:.2e} |"
         )
     lines.append("")
     return lines

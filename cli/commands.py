@@ -302,12 +302,12 @@ def render_progressive_frame(coordinator, goal, frame: int, label: str, quiet: b
     ) as bar:
         task = bar.add_task(label, total=None, status="first wave")
 
-        def on_half(progress, done) -> None:
+        def on_part(progress, done) -> None:
             last[:] = [done]
             if progress.error is not None:
                 bar.update(task, status=f"{progress.spp} spp, est. error {progress.error:.2%}")
 
-        progress = render_progressive(coordinator, goal, frame, on_half=on_half)
+        progress = render_progressive(coordinator, goal, frame, on_part=on_part)
     return progress, last[0]
 
 
@@ -319,9 +319,10 @@ def describe_progressive(progress) -> str:
         "time_budget": "time budget spent",
         "max_spp": "--max-spp reached",
     }[progress.stopped]
+    error = "not estimable yet" if progress.error is None else f"{progress.error:.2%}"
     return (
         f"{progress.spp} spp in {len(progress.waves)} waves, estimated error "
-        f"{progress.error:.2%}{target}, {reason}"
+        f"{error}{target}, {reason}"
     )
 
 

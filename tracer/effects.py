@@ -45,6 +45,17 @@ LIGHT_SAMPLES = 1 << 11
 TEXTURES = 1 << 12
 """Base-colour texture lookups where rays hit textured materials."""
 
+NO_MIS = 1 << 13
+"""Not an effect, and never in a plan this module makes: a sampling switch for the accuracy
+study (``cli/accuracy.py``), set on an explicit plan. The path tracer then samples lights
+without MIS: light samples alone for direct light, and emitters that BSDF-sampled rays hit
+count only after delta bounces and for camera rays. The same image in expectation, noisier."""
+MATERIAL_BUILD = 1 << 14
+"""Not an effect either, and never in a plan this module makes: a kernel switch that runs the
+path kernel's build with the material dispatch (``integrator.kernel_for``) even where the plan
+has no material effect, so every surface is still Lambertian. The accuracy study times all of
+Reiter's stages of a scene in one build, as his renderer switched effects at run time."""
+
 EFFECTS = {
     "area_lights": AREA_LIGHTS,
     "point_lights": POINT_LIGHTS,

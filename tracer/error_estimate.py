@@ -9,13 +9,18 @@ Images are float (H, W, 3) linear radiance. Definitions (``docs/accuracy.md``):
 - the **noise floor** of a reference with per-pixel variance ``var``: the relative MSE that
   the reference's own noise adds, on average, to any image compared with it.
 
-The online estimate (:func:`estimate_rel_mse`) needs no reference: a render split into two
-independent halves A and B of equal sample counts (disjoint sample ranges) has the mean
-``M = (A + B) / 2``, and per pixel ``E[((A - B) / 2)^2] = Var(M)``, the expected squared error
-of an unbiased ``M``; the function's docstring explains its denominator.
+The online estimate (:func:`estimate_rel_mse`) needs no reference: a render split into
+``PARTS`` independent parts of equal sample counts (disjoint sample ranges) estimates the
+variance of their mean from their spread, the expected squared error of an unbiased render;
+the function's docstring explains its denominator and when it returns None.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
+
+Images = np.ndarray | Sequence[np.ndarray]
+"""Parts of a render: a (K, H, W, 3) array or K (H, W, 3) images."""
 
 REL_EPSILON = 1e-2
 """``eps`` of the relative MSE: keeps black pixels from dividing by zero, and makes errors in
@@ -74,35 +79,61 @@ def psnr(x: np.ndarray, ref: np.ndarray) -> float:
     return float("inf") if mse == 0.0 else float(10.0 * np.log10(1.0 / mse))
 
 
-def estimate_rel_mse(a: np.ndarray, b: np.ndarray, eps: float = REL_EPSILON) -> float:
-    """The relative MSE of ``(a + b) / 2`` estimated from two independent half images ``a``
-    and ``b`` (means of equal numbers of samples over disjoint sample ranges), no reference.
+PARTS = 4
+"""Independent parts a render is split into for :func:`estimate_rel_mse` (equal sample counts
+over disjoint sample ranges): enough for a median that one outlier does not move."""
+AMBIGUITY = 1.5
+"""Largest ratio of relative errors between the two readings of outliers (see
+:func:`estimate_rel_mse`) at which the estimate is still given."""
 
-    Per pixel and channel the numerator ``((a - b) / 2)^2`` is an unbiased estimate of the
-    variance of the mean ``m = (a + b) / 2``. The denominator estimates ``mu^2``:
 
-    - ``m^2`` would be biased high (``E[m^2] = mu^2 + Var(m)``) and, worse, grows with the very
-      outlier that makes the numerator large: a firefly in one half then counts as an error of
-      about 100% whatever its size. Measured on the sample scenes, that estimate fell to 0.1-0.5
-      of the true error on scenes with caustics (docs/accuracy.md).
-    - We take instead the smaller half, ``min(a, b)``, which a one-sided outlier does not
-      reach, floored by half the largest ``min(a, b)`` of the 3x3 neighbourhood (but never
-      above ``m``), so that a pixel where one half saw nothing yet, beside pixels where both
-      saw light (the edge of a small bright light), is not measured against ``eps`` alone.
+def estimate_rel_mse(parts: Images, eps: float = REL_EPSILON) -> float | None:
+    """The relative MSE of the mean of ``parts`` estimated without a reference, or None when
+    the parts cannot tell it yet.
 
-    The smaller half is biased low where a pixel's noise is comparable to its mean (few
-    samples), so the estimate errs high there: the stopping rule then takes more samples than
-    needed rather than fewer.
+    ``parts`` is a sequence (or a (K, H, W, 3) array) of K >= 3 independent images, each the
+    mean of equal numbers of samples over disjoint sample ranges. Per pixel and channel:
+
+    - the numerator, the sample variance of the parts over K, is an unbiased estimate of the
+      variance of their mean ``m`` (its expected squared error when the renderer is unbiased);
+    - the denominator estimates ``mu^2`` by the parts' median, which an outlier in one part
+      does not reach (``m`` does: a firefly would count as a ~100% error whatever its size),
+      floored by half the largest median of the 3x3 neighbourhood, never above ``m`` (a pixel
+      at the rim of a small bright light, whose parts mostly missed it, beside pixels whose
+      parts all saw it).
+
+    An outlier that only one part has is read two ways: a rare firefly on top of the pixel's
+    value (the median is right), or the pixel's value itself, found by few samples (a light
+    smaller than a pixel seen directly: ``m`` is right). Which one is true needs more samples;
+    when the two readings of the whole image differ by more than ``AMBIGUITY`` in relative
+    error, the estimate is None ("not estimable yet"). docs/accuracy.md measures this.
     """
-    a, b = _pair(a, b)
-    smaller = np.minimum(a, b)
-    mu = np.maximum(smaller, np.minimum(0.5 * (a + b), 0.5 * max_filter3(smaller)))
-    return float(np.mean(0.25 * (a - b) ** 2 / (mu * mu + eps)))
+    stack = _parts(parts)
+    mean = stack.mean(axis=0)
+    variance = stack.var(axis=0, ddof=1) / stack.shape[0]
+    centre = np.median(stack, axis=0)
+    mu = np.maximum(centre, np.minimum(mean, 0.5 * max_filter3(centre)))
+    rare = float(np.mean(variance / (mu * mu + eps)))
+    carried = float(np.mean(variance / (np.maximum(mu, mean) ** 2 + eps)))
+    if rare > AMBIGUITY**2 * carried:
+        return None
+    return rare
 
 
-def estimate_rel_error(a: np.ndarray, b: np.ndarray, eps: float = REL_EPSILON) -> float:
-    """The relative RMS error of ``(a + b) / 2``: the square root of :func:`estimate_rel_mse`."""
-    return float(np.sqrt(estimate_rel_mse(a, b, eps)))
+def estimate_rel_error(parts: Images, eps: float = REL_EPSILON) -> float | None:
+    """The relative RMS error of the mean of ``parts``: the square root of
+    :func:`estimate_rel_mse` (None when that is None)."""
+    mse = estimate_rel_mse(parts, eps)
+    return None if mse is None else float(np.sqrt(mse))
+
+
+def _parts(parts: Images) -> np.ndarray:
+    stack = np.asarray(parts, dtype=np.float64)
+    if stack.ndim != 4 or stack.shape[3] != 3 or stack.shape[0] < 3:
+        raise ValueError(
+            f"expected at least 3 (H, W, 3) images of one shape, got shape {stack.shape}"
+        )
+    return stack
 
 
 def max_filter3(image: np.ndarray) -> np.ndarray:

@@ -74,8 +74,9 @@ if LENS_DIM != DIMS_PER_VERTEX:  # the lens takes the first vertex's last spare 
 
 PATH = 0
 WHITTED = 1
-"""Kernel modes: ``PATH`` (NEE + MIS; ``direct`` is a path of at most two vertices) and
-``WHITTED`` (no MIS; a path continues only through delta lobes)."""
+"""Kernel modes: ``PATH`` (NEE + MIS; ``direct`` is a path of at most two vertices; with the
+plan's ``effects.NO_MIS`` switch, NEE without MIS) and ``WHITTED`` (no MIS; a path continues
+only through delta lobes)."""
 
 NO_PARAM = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -174,7 +175,8 @@ def path_kernel(materials: bool, lights: bool):
         stack_node = borrowed(stack_node)
         stack_t = borrowed(stack_t)
         has_lights = s.light_cdf.shape[0] > 0 and (plan & effects.LIGHT_SAMPLES) != 0
-        mis = mode == PATH
+        mis = mode == PATH and (plan & effects.NO_MIS) == 0
+        nee_only = mode == PATH and not mis  # emitters that BSDF rays hit are light samples
         general = (plan & effects.MATERIAL_EFFECTS) != 0
         refraction = (plan & effects.REFRACTION) != 0
         # Where ``materials`` or ``lights`` is False, the branches below that test it first are
@@ -202,10 +204,13 @@ def path_kernel(materials: bool, lights: bool):
                         cost += c
                         if k < 0:
                             if lights and plan & (effects.SKY | effects.SUN):
-                                weighted = mis and depth > 1 and not delta_prev and has_lights
+                                weighted = (mode == PATH and depth > 1 and not delta_prev
+                                            and has_lights)  # fmt: skip
+                                # Without MIS a zero BSDF density weighs sampled lights to 0.
+                                p_w = p_bsdf_prev if mis else 0.0
                                 Le = environment_radiance(s.light_data, s.light_env, s.sky,
                                                           s.sky_image, s.sky_rows, s.sky_cols, d,
-                                                          p_bsdf_prev, weighted)  # fmt: skip
+                                                          p_w, weighted)  # fmt: skip
                                 L = (L[0] + beta[0] * Le[0], L[1] + beta[1] * Le[1],
                                      L[2] + beta[2] * Le[2])  # fmt: skip
                             break
@@ -227,7 +232,7 @@ def path_kernel(materials: bool, lights: bool):
                                         beta[2] * math.exp(-sigma[2] * t))  # fmt: skip
 
                         # Add emission, MIS-weighted against light sampling after a non-delta
-                        # bounce.
+                        # bounce (left to light sampling alone without MIS).
                         if plan & effects.AREA_LIGHTS:
                             e_mean = emission_mean(s.mat_emission, mat)
                             if e_mean > 0.0:
@@ -235,6 +240,8 @@ def path_kernel(materials: bool, lights: bool):
                                 if depth > 1 and has_lights and mis and not delta_prev:
                                     p_light = e_mean / s.light_total[0] * t * t / abs(cos_o)
                                     w = power_heuristic(p_bsdf_prev, p_light)
+                                elif depth > 1 and has_lights and nee_only and not delta_prev:
+                                    w = 0.0
                                 L = (L[0] + beta[0] * s.mat_emission[mat, 0] * w,
                                      L[1] + beta[1] * s.mat_emission[mat, 1] * w,
                                      L[2] + beta[2] * s.mat_emission[mat, 2] * w)  # fmt: skip
@@ -333,6 +340,8 @@ def path_kernel(materials: bool, lights: bool):
                             break  # nothing more can reach the camera along this path
                         p_bsdf_prev = pdf
                         depth += 1
+                        if nee_only and has_lights and depth >= max_depth and not delta_prev:
+                            break  # the last vertex's emission would count 0 without MIS
 
                         # Russian roulette: survive with probability q and divide by it (unbiased).
                         if depth > rr_depth:
@@ -360,8 +369,9 @@ render_pixels_all = KERNELS[(True, True)]
 
 def kernel_for(plan: int):
     """The build of the path kernel that a plan needs: with the material dispatch if it has a
-    material effect, with the point/spot/sun/sky code if it has one of those lights."""
-    materials = (plan & effects.MATERIAL_EFFECTS) != 0
+    material effect (or the ``effects.MATERIAL_BUILD`` switch), with the point/spot/sun/sky
+    code if it has one of those lights."""
+    materials = (plan & (effects.MATERIAL_EFFECTS | effects.MATERIAL_BUILD)) != 0
     lights = (plan & (effects.POINT_LIGHTS | effects.SUN | effects.SKY)) != 0
     return KERNELS[(materials, lights)]
 

@@ -137,10 +137,10 @@ def test_effect_stages_add_accuracy(study):
 
 @pytest.mark.parametrize("name", ["cornell-box", "studio", "nefertiti"])
 def test_estimate_is_calibrated(name, study, tmp_path):
-    """The error estimated from two half buffers against the true error (reference noise
-    removed), at 2 to 64 spp: within +-30% from 16 spp, and never more than 30% too low
-    (the estimate errs high at few samples, where a pixel's noise is comparable to its mean).
-    Our own references here take 4096 spp."""
+    """The error estimated from independent parts against the true error (reference noise
+    removed), at 4 to 64 spp: within +-30% wherever it gives an estimate, and it gives one
+    from 16 spp on (these scenes have no light smaller than a pixel). Our own references here
+    take 4096 spp."""
     options, result, _ = study
     if name == "cornell-box":
         records = result["calibration"]
@@ -153,10 +153,10 @@ def test_estimate_is_calibrated(name, study, tmp_path):
         ref = own_reference(scene, path.parent, camera, settings, 4096, 16, tmp_path)
         floor = noise_floor(ref.mean, ref.var_of_mean)
         records = calibration(scene, camera, ref, floor, options, lambda n: None)
-    assert [r["spp"] for r in records] == [2, 4, 8, 16, 32, 64]
-    ratios = {r["spp"]: r["estimated"] / r["true"] for r in records}
-    assert all(ratio >= 0.7 for ratio in ratios.values()), ratios
-    assert all(abs(ratio - 1) <= 0.3 for n, ratio in ratios.items() if n >= 16), ratios
+    assert [r["spp"] for r in records] == [4, 8, 16, 32, 64]
+    ratios = {r["spp"]: r["estimated"] / r["true"] for r in records if r["estimated"]}
+    assert all(abs(ratio - 1) <= 0.3 for ratio in ratios.values()), ratios
+    assert {16, 32, 64} <= set(ratios), ratios
 
 
 def test_time_to_interpolates_and_extrapolates():
@@ -200,7 +200,8 @@ def test_configurations_cover_the_issue():
     for depth in (1, 2, 3, 4, 16):
         assert f"path-d{depth}" in names
     assert "path-d8" not in names  # that is `path` itself
-    for name in ("path", "path-no-rr", "path-no-plan", "path-bsdf", "direct", "whitted", "ao"):
+    for name in ("path", "path-no-rr", "path-no-plan", "path-no-mis", "path-bsdf", "direct",
+                 "whitted", "ao"):  # fmt: skip
         assert name in names
 
 
@@ -253,6 +254,17 @@ def test_own_reference_is_cached(tmp_path):
     assert np.array_equal(first.mean, again.mean) and "cached" in again.detail
     other = own_reference(scene, CORNELL.parent, camera, settings, 64, 4, tmp_path)
     assert len(list(tmp_path.glob("*.npz"))) == 2 and other.spp == 64
+
+
+def test_reference_cache_follows_the_tracer_code(monkeypatch):
+    """The cache key hashes the tracer's sources: a changed renderer gets a new reference."""
+    from cli import accuracy_reference
+
+    camera = fmt.override(compile_scene(load_scene(CORNELL)).camera, width=8, height=8)
+    settings = fmt.RenderSettings()
+    before = accuracy_reference.cache_key(CORNELL.parent, camera, settings, 32, 4)
+    monkeypatch.setattr(accuracy_reference, "source_digest", lambda: "another tracer")
+    assert accuracy_reference.cache_key(CORNELL.parent, camera, settings, 32, 4) != before
 
 
 def test_report_files(study, tmp_path):

@@ -31,7 +31,7 @@ def png_metadata(path) -> dict:
 
 
 def test_target_error(capsys, tmp_path, tiny_scene_file):
-    """The image is the library's render of the samples taken (the halves tile samples
+    """The image is the library's render of the samples taken (the parts tile samples
     [0, spp)), and the estimate met the target."""
     png, npy = tmp_path / "out.png", tmp_path / "out.npy"
     for out in (png, npy):

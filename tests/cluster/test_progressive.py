@@ -1,6 +1,6 @@
-"""Progressive frames: waves of two independent half buffers, sized and stopped by a target
-error, a time budget or a sample cap. The rules are checked on :class:`ProgressiveFrame`
-alone, with synthetic halves and a fake clock; one render goes through a real coordinator and
+"""Progressive frames: waves of independent parts, sized and stopped by a target error, a time
+budget or a sample cap. The rules are checked on :class:`ProgressiveFrame`
+alone, with synthetic parts and a fake clock; one render goes through a real coordinator and
 must equal the library's render of the same samples."""
 
 import math
@@ -10,18 +10,18 @@ import pytest
 
 from cluster.connect import connect, disconnect
 from cluster.coordinator import Coordinator
-from cluster.progressive import MAX_WAVE_SPP, Goal, ProgressiveFrame, render_progressive
+from cluster.progressive import MAX_PART_SPP, Goal, ProgressiveFrame, render_progressive
 from cluster.scene_graph import SceneGraph
 from tests.worker.test_replica import studio
 from tracer.compile import compile_scene
-from tracer.error_estimate import rel_mse
+from tracer.error_estimate import PARTS, rel_mse
 from tracer.render import render_image
 from tracer.scene_format import override
 
 W, H = 16, 12
 MU = 0.5
 NOISE = 0.8
-"""Per-sample relative noise of the synthetic renderer: a half of n samples has relative sd
+"""Per-sample relative noise of the synthetic renderer: a part of n samples has relative sd
 NOISE / sqrt(n)."""
 
 
@@ -33,42 +33,42 @@ class FakeClock:
         return self.now
 
 
-def synthetic_half(spp: int, sample_start: int) -> np.ndarray:
-    """A half image of ``spp`` samples: the mean of Gaussian samples around MU, seeded by the
+def synthetic_part(spp: int, sample_start: int) -> np.ndarray:
+    """A part image of ``spp`` samples: the mean of Gaussian samples around MU, seeded by the
     sample range, so that every range is an independent, reproducible draw."""
     rng = np.random.default_rng(sample_start)
     return MU + MU * NOISE / math.sqrt(spp) * rng.normal(size=(H, W, 3))
 
 
 def drive(goal: Goal, seconds_per_spp: float = 0.01, clock=None) -> tuple[ProgressiveFrame, list]:
-    """Run a frame with the synthetic renderer; each half 'takes' spp x seconds_per_spp."""
+    """Run a frame with the synthetic renderer; each part 'takes' spp x seconds_per_spp."""
     clock = clock or FakeClock()
     progress = ProgressiveFrame(W, H, goal, clock=clock)
-    halves = []
-    while (half := progress.next_half()) is not None:
-        halves.append(half)
-        seconds = half.spp * seconds_per_spp
+    rendered = []
+    while (part := progress.next_part()) is not None:
+        rendered.append(part)
+        seconds = part.spp * seconds_per_spp
         clock.now += seconds
-        progress.add_half(synthetic_half(half.spp, half.sample_start), seconds)
-    return progress, halves
+        progress.add_part(synthetic_part(part.spp, part.sample_start), seconds)
+    return progress, rendered
 
 
-def test_halves_are_independent_and_equal():
-    """Sample ranges follow each other without gaps or overlaps; B repeats A's count; waves
-    double the samples until a half reaches MAX_WAVE_SPP."""
-    progress, halves = drive(Goal(max_spp=1024))
+def test_parts_are_independent_and_equal():
+    """Sample ranges follow each other without gaps or overlaps; every part of a wave has the
+    first part's count; waves double the samples until a part reaches MAX_PART_SPP."""
+    progress, parts = drive(Goal(max_spp=1024))
     start = 0
-    for half in halves:
-        assert half.sample_start == start
-        start += half.spp
+    for part in parts:
+        assert part.sample_start == start
+        start += part.spp
     assert start == progress.spp == 1024
-    firsts = [h for h in halves if h.first]
-    seconds = [h for h in halves if not h.first]
-    assert [h.spp for h in firsts] == [h.spp for h in seconds]
-    assert [h.spp for h in firsts][:8] == [1, 1, 2, 4, 8, 16, 32, 64]
-    assert max(h.spp for h in halves) == MAX_WAVE_SPP
+    assert [p.index for p in parts] == list(range(PARTS)) * (len(parts) // PARTS)
+    waves = [parts[i : i + PARTS] for i in range(0, len(parts), PARTS)]
+    assert all(len({p.spp for p in wave}) == 1 for wave in waves)
+    assert [wave[0].spp for wave in waves][:7] == [1, 1, 2, 4, 8, 16, 32]
+    assert max(p.spp for p in parts) <= MAX_PART_SPP
     assert progress.stopped == "max_spp"
-    assert progress.spp_a == progress.spp_b == 512
+    assert progress.part_spp * PARTS == 1024
 
 
 def test_stops_at_the_target_error():
@@ -79,7 +79,7 @@ def test_stops_at_the_target_error():
     assert progress.stopped == "target_error"
     assert progress.error <= target
     assert all(w.error > target for w in progress.waves[:-1])
-    # The true error of the mean of Gaussian halves: MU * NOISE / sqrt(spp) relative.
+    # The true error of the mean of Gaussian parts: MU * NOISE / sqrt(spp) relative.
     law = (NOISE / target) ** 2
     assert law / 2 < progress.spp < 2 * law
     true = math.sqrt(rel_mse(progress.image, np.full((H, W, 3), MU)))
@@ -99,11 +99,26 @@ def test_stops_within_the_time_budget():
 
 
 def test_a_frame_takes_at_least_one_wave():
-    """A budget smaller than one wave still gives an image of two samples and an estimate."""
-    progress, halves = drive(Goal(time_budget=1e-6), seconds_per_spp=1.0)
-    assert len(halves) == 2 and progress.spp == 2
+    """A budget smaller than one wave still gives an image of one sample per part and an
+    estimate."""
+    progress, parts = drive(Goal(time_budget=1e-6), seconds_per_spp=1.0)
+    assert len(parts) == PARTS and progress.spp == PARTS
     assert progress.stopped == "time_budget"
     assert progress.error is not None
+
+
+def test_a_target_waits_for_an_estimate():
+    """While the estimate says "not estimable yet" (None), a frame with a target error keeps
+    sampling, and the waves keep doubling: a renderer whose parts each saw one bright outlier
+    in a different pixel, on an otherwise noiseless image."""
+    progress = ProgressiveFrame(W, H, Goal(target_error=0.5, max_spp=64))
+    while (part := progress.next_part()) is not None:
+        image = np.full((H, W, 3), MU)
+        image[part.index, part.index] = 1000.0 / part.spp  # one sample of 1000 per part
+        progress.add_part(image, 0.1)
+    assert [w.error for w in progress.waves] == [None] * len(progress.waves)
+    assert [w.spp for w in progress.waves] == [4, 8, 16, 32, 64]
+    assert progress.stopped == "max_spp"
 
 
 def test_target_or_budget_whichever_first():
@@ -129,13 +144,13 @@ def test_bad_goals_are_refused(goal):
         Goal(**goal)
 
 
-def test_add_half_checks_its_input():
+def test_add_part_checks_its_input():
     progress = ProgressiveFrame(W, H, Goal())
-    with pytest.raises(RuntimeError, match="next_half"):
-        progress.add_half(np.zeros((H, W, 3)), 0.1)
-    progress.next_half()
+    with pytest.raises(RuntimeError, match="next_part"):
+        progress.add_part(np.zeros((H, W, 3)), 0.1)
+    progress.next_part()
     with pytest.raises(ValueError, match="shape"):
-        progress.add_half(np.zeros((H + 1, W, 3)), 0.1)
+        progress.add_part(np.zeros((H + 1, W, 3)), 0.1)
 
 
 @pytest.fixture(scope="module")
@@ -150,13 +165,15 @@ def coordinator():
 
 def test_through_the_coordinator(coordinator):
     """Waves through tracer actors: the image is the mean of samples [0, spp), which the
-    library renders in one call (equal up to float32 rounding of the half means), and the
-    reported error is the estimate from the two halves."""
+    library renders in one call (equal up to float32 rounding of the part means), and the
+    reported error is the estimate from the parts (on this 32x24 image with a small lamp, it
+    is not estimable up to 16 spp: a target waits for it)."""
     state = coordinator.graph.state
-    progress = render_progressive(coordinator, Goal(max_spp=12))
-    assert progress.stopped == "max_spp" and progress.spp == 12
-    expected = render_image(compile_scene(state), settings=override(state.render, spp=12))[0]
+    progress = render_progressive(coordinator, Goal(max_spp=32))
+    assert progress.stopped == "max_spp" and progress.spp == 32
+    expected = render_image(compile_scene(state), settings=override(state.render, spp=32))[0]
     np.testing.assert_allclose(progress.image, expected, rtol=1e-5, atol=1e-6)
     assert progress.error > 0.0
-    reached = render_progressive(coordinator, Goal(target_error=progress.error * 1.5))
-    assert reached.stopped == "target_error" and reached.spp <= 12
+    goal = Goal(target_error=progress.error * 1.5, max_spp=32)
+    reached = render_progressive(coordinator, goal)
+    assert reached.stopped == "target_error" and reached.spp <= 32

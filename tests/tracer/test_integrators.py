@@ -1,7 +1,8 @@
 """Integrators: ``direct`` is the path of two vertices; NEE-only (Whitted), BSDF-only and MIS
-estimate the same direct light; Russian roulette leaves the expected image unchanged; Whitted
-recursion through mirrors and glass; ambient occlusion against an analytic value; the debug
-outputs (albedo, normal, depth, cost)."""
+estimate the same direct light, and the path tracer without MIS the same image as with it;
+Russian roulette leaves the expected image unchanged; Whitted recursion through mirrors and
+glass; ambient occlusion against an analytic value; the debug outputs (albedo, normal, depth,
+cost)."""
 
 import math
 
@@ -74,6 +75,47 @@ def test_nee_bsdf_and_mis_agree(cornell):
     bsdf = passes_with_plan(scene, camera, settings, bsdf_only, 12, 256)
     agree(mis, nee)
     agree(mis, bsdf)
+
+
+def test_path_without_mis_agrees_with_mis(cornell):
+    """The path tracer with light samples and no MIS (``effects.NO_MIS``: emitters that
+    BSDF-sampled rays hit count only after delta bounces and for camera rays) estimates the
+    same image as with MIS, at every depth; it is a different estimator (the images differ)."""
+    scene, camera = cornell
+    settings = override(scene.render, seed=3)
+    plan = effect_plan(scene, settings)
+    no_mis = EffectPlan(plan.flags | effects.NO_MIS, {})
+    mis = render_passes(scene, 12, 8, camera)
+    nee = passes_with_plan(scene, camera, settings, no_mis, 12, 8)
+    agree(mis, nee)
+    same_seed = passes_with_plan(scene, camera, settings, plan, 1, 8)
+    assert same_seed[0].tobytes() != nee[0].tobytes()
+
+
+def test_path_without_mis_under_a_sky():
+    """The sky and sun branch: a white diffuse sphere under a white sky is invisible to the
+    path tracer (a furnace: every pixel is 1 in expectation) with MIS and without it."""
+    scene = furnace({"reflectance": [1, 1, 1]}, "path")
+    settings = override(scene.render, spp=8)
+    plan = effect_plan(scene, settings)
+    for flags in (plan.flags, plan.flags | effects.NO_MIS):
+        passes = passes_with_plan(scene, scene.camera, settings, EffectPlan(flags, {}), 8, 8)
+        mean, se = mean_and_error(passes)
+        assert np.all(np.abs(mean - 1.0) < 4 * se + 1e-6), (flags, mean, se)
+
+
+def test_material_build_switch_changes_only_the_build(cornell):
+    """``effects.MATERIAL_BUILD`` runs a Lambertian plan in the kernel build with the material
+    dispatch: another kernel, the same pixels bit for bit."""
+    scene, camera = cornell
+    settings = override(scene.render, spp=2)
+    plan = effect_plan(scene, settings)
+    assert not plan.flags & effects.MATERIAL_EFFECTS
+    switched = EffectPlan(plan.flags | effects.MATERIAL_BUILD, {})
+    assert integrator.kernel_for(switched.flags) is not integrator.kernel_for(plan.flags)
+    light = render_image(scene, camera, settings, plan=plan)[0]
+    general = render_image(scene, camera, settings, plan=switched)[0]
+    assert light.tobytes() == general.tobytes()
 
 
 def test_a_missing_strategy_is_caught(cornell):
