@@ -159,7 +159,11 @@ class JobCreate(Strict):
     spp: int | None = Field(default=None, ge=1)
     target_error: float | None = Field(default=None, gt=0, lt=1)
     time_budget: float | None = Field(default=None, gt=0)
-    max_spp: int | None = Field(default=None, ge=2, description="cap for the progressive modes")
+    max_spp: int | None = Field(
+        default=None,
+        ge=4,
+        description="cap for the progressive modes (at least 4: a wave is four parts)",
+    )
     width: int | None = Field(default=None, ge=1)
     height: int | None = Field(default=None, ge=1)
     seed: int | None = Field(default=None, ge=0, lt=2**63)

@@ -12,8 +12,8 @@ to the next in a round-robin over the running job (at most one job runs at a tim
 submission order) and every watched session. A session's turn is one
 ``InteractiveSession.render_next()``; a job's turn is one coordinator frame: a whole frame
 for a job by samples per pixel (rendered in one pass, so the result is bit-identical to the
-command line's), or one half-wave of a progressive frame for a job by target error or time
-budget. So a session waits at most one job frame between two of its own frames, and a job
+command line's), or one part of a wave of a progressive frame for a job by target error or
+time budget. So a session waits at most one job frame between two of its own frames, and a job
 advances at least once per round. Sessions nobody watches (no stream client and no request
 for ``session_render_grace`` seconds) are skipped; idle ones expire.
 
@@ -187,8 +187,8 @@ class JobRun:
         return self._wave(coordinator, spec, camera, render)
 
     def _wave(self, coordinator, spec: FrameSpec, camera, render):
-        """One half of a wave of a progressive frame (``cluster.progressive``: two independent
-        halves per wave, whose difference estimates the error of their mean)."""
+        """One part of a wave of a progressive frame (``cluster.progressive``: four independent
+        parts per wave, whose spread estimates the error of their mean)."""
         p = self.progressive
         if p is None:
             target = self.request.get("target_error")
@@ -198,18 +198,18 @@ class JobRun:
                 max_spp=self.max_spp,
             )
             p = self.progressive = ProgressiveFrame(camera.width, camera.height, goal)
-        half = p.next_half()
+        part = p.next_part()
         t0 = time.monotonic()
         self.inflight = coordinator.submit_frame(
-            spec.number, camera, fmt.override(render, spp=half.spp), half.sample_start, self.graph
+            spec.number, camera, fmt.override(render, spp=part.spp), part.sample_start, self.graph
         )
         try:
             frame = coordinator.wait_frame(self.inflight)
         finally:
             self.inflight = None
         self.last_frame = frame
-        p.add_half(frame.rgb, time.monotonic() - t0)
-        self.samples_done += camera.width * camera.height * half.spp
+        p.add_part(frame.rgb, time.monotonic() - t0)
+        self.samples_done += camera.width * camera.height * part.spp
         if not p.done:
             return None
         return self._complete(spec, p.image, p.spp, p.error, p.elapsed)

@@ -170,7 +170,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 def quality_goal(args: argparse.Namespace, frames: int = 1):
     """The progressive goal of ``--target-error`` / ``--time-budget`` (None without them);
     the budget is shared evenly by ``frames``."""
-    from cluster.progressive import DEFAULT_MAX_SPP, Goal
+    from cluster.progressive import DEFAULT_MAX_SPP, PARTS, Goal
 
     if args.target_error is None and args.time_budget is None:
         if args.max_spp is not None:
@@ -182,8 +182,11 @@ def quality_goal(args: argparse.Namespace, frames: int = 1):
             "choose them (cap them with --max-spp)"
         )
     max_spp = args.max_spp or DEFAULT_MAX_SPP
-    if max_spp < 2:
-        raise UsageError("--max-spp must be at least 2 (two half buffers of one sample)")
+    if max_spp < PARTS:
+        raise UsageError(
+            f"--max-spp must be at least {PARTS} (a wave is {PARTS} independent parts of at "
+            "least one sample each)"
+        )
     budget = None if args.time_budget is None else args.time_budget / frames
     return Goal(target_error=args.target_error, time_budget=budget, max_spp=max_spp)
 

@@ -89,7 +89,7 @@ def test_animation_shares_the_budget(capsys, tmp_path):
         (["--time-budget", "inf"], ["--time-budget"]),
         (["--target-error", "0.1", "--spp", "4"], ["--spp", "--max-spp"]),
         (["--max-spp", "64"], ["--max-spp", "--target-error"]),
-        (["--target-error", "0.1", "--max-spp", "1"], ["--max-spp", "at least 2"]),
+        (["--target-error", "0.1", "--max-spp", "3"], ["--max-spp", "at least 4"]),
     ],
 )
 def test_bad_quality_options(capsys, tmp_path, tiny_scene_file, argv, words):
