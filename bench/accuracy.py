@@ -12,8 +12,9 @@ import sys
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-if str(REPO_ROOT) not in sys.path:  # so `python bench/accuracy.py` finds the packages
-    sys.path.insert(0, str(REPO_ROOT))
+if str(REPO_ROOT) in sys.path:  # the packages first: bench/cluster.py is not the cluster package
+    sys.path.remove(str(REPO_ROOT))
+sys.path.insert(0, str(REPO_ROOT))
 
 from cli.main import main  # noqa: E402
 

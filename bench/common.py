@@ -26,8 +26,12 @@ BENCH_DIR = Path(__file__).resolve().parent
 REPO_ROOT = BENCH_DIR.parent
 RESULTS_DIR = BENCH_DIR / "results"
 
-if str(REPO_ROOT) not in sys.path:  # so `python bench/NAME.py` finds the tracer package
-    sys.path.insert(0, str(REPO_ROOT))
+# The packages come first, before bench/ itself (which `python bench/NAME.py` puts first): else
+# bench/cluster.py would shadow the cluster package whenever the root is on the path too (for
+# example through PYTHONPATH).
+if str(REPO_ROOT) in sys.path:
+    sys.path.remove(str(REPO_ROOT))
+sys.path.insert(0, str(REPO_ROOT))
 
 console = Console(highlight=False, width=None if sys.stdout.isatty() else 160)
 """The benchmarks' console; wide when writing to a file or pipe, so tables keep one line a row."""
