@@ -22,8 +22,8 @@ Set-up (every balancer sees exactly the same frames, speeds and noise):
 - **Oracle.** Not a balancer: the min-max partition of each frame's *true* costs with the
   *true* speeds. What remains is the floor set by jitter and by whole-line granularity.
 - **Noise floor.** The idle of the jitter alone: every tracer given exactly its share of
-  infinitely divisible work, so tracer i takes ``T0 * jitter_i``. No split of whole lines, known
-  in advance, does better on average.
+  infinitely divisible work, so tracer i takes ``T0 * jitter_i + overhead``. In expectation no
+  split of whole lines, known in advance, does better.
 
 Writes ``bench/results/balance_sim.json`` and, when matplotlib is installed (the ``peers``
 extra), ``bench/results/balance_sim.png`` (idle % per frame, after Bikker's figure 48).
@@ -181,7 +181,9 @@ def run(args, factories: dict, jitter_sigma: float, lag: int, keep_frames: bool)
                 "relative_speeds": np.round(rel, 4),
                 "lines": height,
                 "frames": frames,
-                "noise_floor": float(np.mean([idle_percent(j) for j in jitter])),
+                "noise_floor": float(
+                    np.mean([idle_percent(args.frame_ms * j + args.overhead_ms) for j in jitter])
+                ),
                 "balancers": {},
             }
             for name, factory in factories.items():

@@ -83,8 +83,8 @@ class StudyOptions:
     """FLIP (the slowest metric) at every ``flip_every``-th sweep level and the last."""
 
     def __post_init__(self) -> None:
-        if self.max_spp < 2 or self.max_spp & (self.max_spp - 1):
-            raise ValueError(f"max_spp must be a power of two >= 2, got {self.max_spp}")
+        if self.max_spp < PARTS or self.max_spp & (self.max_spp - 1):
+            raise ValueError(f"max_spp must be a power of two >= {PARTS}, got {self.max_spp}")
         if self.pixels < 64:
             raise ValueError(f"pixels must be at least 64, got {self.pixels}")
         for name in ("reference_factor", "reference_passes", "effect_spp", "repeats"):

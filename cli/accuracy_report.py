@@ -355,8 +355,9 @@ def calibration_section(results: dict, image_dir: str) -> list[str]:
             if ratios
             else "- | - | -"
         )
+        levels = f"{spp[0]}-{spp[-1]}" if spp else "-"
         rows.append(
-            f"| {name} | {spp[0]}-{spp[-1]} | {cells} | "
+            f"| {name} | {levels} | {cells} | "
             f"{sum(map(within_band, given))}/{len(given)} | {spp_ranges(missing)} |"
         )
     given = [r for r in records if r["estimated"] is not None and r["true"] > 0]
@@ -370,6 +371,7 @@ def calibration_section(results: dict, image_dir: str) -> list[str]:
         if missing
         else "It gave an estimate at every level."
     )
+    spread = f"ratios {min(ratios):.2f} to {max(ratios):.2f}" if ratios else "no ratios"
     return [
         "### Calibration of the online error estimate",
         "",
@@ -380,7 +382,7 @@ def calibration_section(results: dict, image_dir: str) -> list[str]:
         f"reference's own settings at every spp from {PARTS} up, {len(records)} levels in all. "
         f"Where it gave an estimate ({len(given)} levels): {sum(map(within_band, given))} of "
         f"{len(given)} within +-30%, {sum(map(within_band, low))} of {len(low)} where the true "
-        f"error is at most 10%; ratios {min(ratios):.2f} to {max(ratios):.2f}. {missing_text}",
+        f"error is at most 10%; {spread}. {missing_text}",
         "",
         "| scene | spp | est/true min | median | max | within +-30% | not estimable at spp |",
         "|---|---|---|---|---|---|---|",

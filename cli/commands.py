@@ -309,6 +309,8 @@ def render_progressive_frame(coordinator, goal, frame: int, label: str, quiet: b
             last[:] = [done]
             if progress.error is not None:
                 bar.update(task, status=f"{progress.spp} spp, est. error {progress.error:.2%}")
+            elif progress.waves:
+                bar.update(task, status=f"{progress.spp} spp, error not estimable yet")
 
         progress = render_progressive(coordinator, goal, frame, on_part=on_part)
     return progress, last[0]

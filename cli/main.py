@@ -91,8 +91,10 @@ def positive_float(text: str) -> float:
 
 def power_of_two(text: str) -> int:
     value = positive_int(text)
-    if value < 2 or value & (value - 1):
-        raise argparse.ArgumentTypeError(f"must be a power of two, at least 2, got {value}")
+    if value < 4 or value & (value - 1):
+        raise argparse.ArgumentTypeError(
+            f"must be a power of two, at least 4 (one wave of the error estimate), got {value}"
+        )
     return value
 
 

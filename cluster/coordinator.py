@@ -156,7 +156,8 @@ class _Slot:
     handle: Any
     cpus: float
     state: str = "starting"
-    """``starting``, ``ready``, ``recovering`` (died; Ray restarts it), ``dead`` or
+    """``starting``, ``warming`` (answered its snapshot, loading its kernels: a tracer placed
+    on a new node), ``ready``, ``recovering`` (died; Ray restarts it), ``dead`` or
     ``retired``."""
     synced: OrderedDict[str, int] = field(default_factory=OrderedDict)
     """Per scene key, the version the tracer will hold once its submitted calls ran (the
@@ -174,6 +175,8 @@ class _Slot:
     warm: dict | None = None
     home: str | None = None
     """The Ray node the tracer was placed on in one-tracer-per-node mode (None: spread)."""
+    warming: Any = None
+    """The pending ``warm_up`` call of a tracer placed on a new node."""
 
 
 @dataclass(eq=False)
@@ -290,6 +293,7 @@ class Coordinator:
         if not ray.is_initialized():
             connect()
         self._per_node = tracers is None
+        self._declined: set[str] = set()
         self._cpus_per_tracer = cpus_per_tracer
         placements = self._placements(tracers, cpus_per_tracer)
         self._default_cpus = placements[-1][0]
@@ -343,12 +347,20 @@ class Coordinator:
         other mode)."""
         if not self._per_node:
             return []
-        homes = {s.home for s in self._slots if s.state in ("starting", "ready", "recovering")}
+        nodes = self._cpu_nodes()
+        alive = {n["NodeID"] for n in nodes}
+        for slot in self._slots:  # Ray would restart these on whichever node frees up
+            if slot.state in ("starting", "recovering") and slot.home not in alive:
+                log.info("tracer %s: its node %s is gone; retiring it", slot.id, slot.home)
+                self.remove_tracer(slot.id, decline_node=False)
+        live = ("starting", "warming", "ready", "recovering")
+        homes = {s.home for s in self._slots if s.state in live} | self._declined
         started = []
-        for node in self._cpu_nodes():
+        for node in nodes:
             if node["NodeID"] not in homes:
                 cpus, options, home = self._node_placement(node, self._cpus_per_tracer)
                 slot = self._start(cpus, options, home=home)
+                slot.warming = slot.handle.warm_up.remote()  # runs after its snapshot
                 log.info("tracer %s placed on new node %s", slot.id, home)
                 started.append(slot.id)
         return started
@@ -408,6 +420,9 @@ class Coordinator:
         """Tracers that are starting or recovering become ready once their probe answers."""
         now = time.perf_counter()
         for slot in self._slots:
+            if slot.state == "warming":
+                self._poll_warm_up(slot, now)
+                continue
             if slot.state not in ("starting", "recovering"):
                 continue
             if slot.probe is None:
@@ -429,10 +444,25 @@ class Coordinator:
             except RayError as error:  # still restarting, or cannot be placed yet
                 log.info("tracer %s not back yet: %s", slot.id, _first_line(error))
                 continue
-            slot.state = "ready"
+            slot.state = "warming" if slot.warming is not None else "ready"
             _hold(slot, self.graph.key, version)
             slot.died_probes = 0
             slot.last_done = now
+
+    def _poll_warm_up(self, slot: _Slot, now: float) -> None:
+        """A tracer placed on a new node becomes ready once its kernels are loaded, so its
+        first range is not timed with the load (nor taken for a straggler)."""
+        ready, _ = ray.wait([slot.warming], timeout=0)
+        if not ready:
+            return
+        ref, slot.warming = slot.warming, None
+        try:
+            slot.warm = ray.get(ref)
+            slot.pid, slot.node = slot.warm["pid"], slot.warm["node"]
+        except RayError as error:  # it will be handled when it renders
+            log.warning("tracer %s: warm-up failed: %s", slot.id, _first_line(error))
+        slot.state = "ready"
+        slot.last_done = now
 
     def add_tracers(
         self, n: int = 1, cpus: float | None = None, wait: bool = True, delay: float = 0.0
@@ -446,11 +476,17 @@ class Coordinator:
             self._wait_started(slots, self.start_timeout, require_all=True)
         return [s.id for s in slots]
 
-    def remove_tracer(self, tracer_id: str) -> None:
-        """Stop a tracer for good; lines it still owes are handed to the others."""
+    def remove_tracer(self, tracer_id: str, decline_node: bool = True) -> None:
+        """Stop a tracer for good; lines it still owes are handed to the others. With
+        ``decline_node``, ``place_new_nodes`` leaves its node alone from now on."""
         slot = self._slot(tracer_id)
         slot.state = "retired"
-        ray.kill(slot.handle, no_restart=True)
+        if decline_node and slot.home is not None:
+            self._declined.add(slot.home)
+        try:
+            ray.kill(slot.handle, no_restart=True)
+        except RayError:  # pragma: no cover - already gone
+            pass
 
     def tracer_handle(self, tracer_id: str):
         """The Ray actor handle of a tracer (for tests and tools)."""
@@ -612,7 +648,7 @@ class Coordinator:
                 busy = {task.slot.id for task in self._orphans.values()}
                 free = [s for s in ready if s.id not in busy]
                 return free or ready
-            if not any(s.state in ("starting", "recovering") for s in self._slots):
+            if not any(s.state in ("starting", "warming", "recovering") for s in self._slots):
                 raise ClusterError("no tracer is left to render with")
             if time.perf_counter() > deadline:
                 raise ClusterError(f"no tracer became ready within {self.start_timeout:g} s")
@@ -818,7 +854,7 @@ class Coordinator:
         busy = {t.slot.id for t in job.pending.values()}
         targets = [s for s in ready if s.id not in busy] or ready
         if not targets:  # nobody ready: queue on tracers that are coming back
-            targets = [s for s in self._slots if s.state in ("starting", "recovering")]
+            targets = [s for s in self._slots if s.state in ("starting", "warming", "recovering")]
         if not targets:
             raise ClusterError(f"frame {job.frame}: no tracer is left to render with")
         pieces = even_split(y1 - y0, min(len(targets), y1 - y0))

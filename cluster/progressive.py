@@ -54,8 +54,8 @@ class Goal:
             math.isfinite(self.time_budget) and self.time_budget > 0.0
         ):
             raise ValueError(f"time budget must be a positive number, got {self.time_budget}")
-        if self.max_spp < 2:
-            raise ValueError(f"max_spp must be at least 2, got {self.max_spp}")
+        if self.max_spp < PARTS:
+            raise ValueError(f"max_spp must be at least {PARTS} (one wave), got {self.max_spp}")
 
 
 @dataclass(frozen=True)

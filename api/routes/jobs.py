@@ -16,6 +16,7 @@ from api.models import FramePublic, JobCreate, JobPublic, JobsPublic, Progress, 
 from api.scenes import new_id
 from api.service import job_dir, job_frames, job_state
 from api.store import TERMINAL
+from cluster.progressive import PARTS
 from tracer.image_io import read_image, write_image
 from tracer.loader import format_validation_error
 
@@ -77,6 +78,14 @@ def _check_limits(ctx: Ctx, body: JobCreate, state) -> None:
         raise ApiError(422, f"spp: at most {s.max_spp}", "limit")
     if body.max_spp is not None and body.max_spp > s.max_spp:
         raise ApiError(422, f"max_spp: at most {s.max_spp}", "limit")
+    progressive = body.target_error is not None or body.time_budget is not None
+    if progressive and s.max_spp < PARTS:
+        raise ApiError(
+            422,
+            f"this server caps spp at {s.max_spp}: a job by target error or time budget needs "
+            f"at least one wave of {PARTS}",
+            "limit",
+        )
     if body.time_budget is not None and body.time_budget > s.max_time_budget:
         raise ApiError(422, f"time_budget: at most {s.max_time_budget:g} s", "limit")
     try:

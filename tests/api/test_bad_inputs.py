@@ -449,6 +449,15 @@ def test_limits_on_upload_size_and_triangles(client, settings_of):
     check(client.post("/v1/scenes", files={"scene": ("s.json", tiny_json())}), 422, "triangles")
 
 
+def test_progressive_job_under_a_cap_below_one_wave(client, settings_of):
+    scene = upload_tiny(client)
+    settings_of(client, max_spp=2)
+    body = {"scene_id": scene["id"], "target_error": 0.1}
+    check(client.post("/v1/jobs", json=body), 422, "one wave of 4")
+    body = {"scene_id": scene["id"], "max_spp": 3, "time_budget": 1.0}
+    check(client.post("/v1/jobs", json=body), 422, "max_spp")
+
+
 def test_bundle_limits(client, settings_of):
     settings_of(client, max_bundle_files=3)
     many = zip_bytes({f"f{i}.txt": b"x" for i in range(5)} | {"scene.json": tiny_json()})

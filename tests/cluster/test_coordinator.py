@@ -487,7 +487,10 @@ def test_a_node_removed_mid_animation_does_not_stop_the_job():
 def test_a_node_that_joins_gets_a_tracer_from_the_next_frame():
     """One tracer per node (the default) on a head without CPUs and one worker; a second
     worker joins, ``place_new_nodes`` starts a tracer there (once: a second call finds no new
-    node), and the next frames are shared by both, equal to render_image."""
+    node), warmed up before it is ready, and the next frames are shared by both, equal to
+    render_image. The second worker leaves and a third joins: the lost tracer is retired
+    rather than left to come back beside the new one. A tracer removed on purpose is not
+    placed again."""
     from ray.cluster_utils import Cluster
 
     for other in _coordinators.values():
@@ -513,9 +516,24 @@ def test_a_node_that_joins_gets_a_tracer_from_the_next_frame():
         deadline = time.monotonic() + 120
         while "t1" not in coordinator.ready and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert coordinator.info("t1").node == second.node_id != first.node_id
-        frames += list(coordinator.render_animation(frames=[1, 2, 3]))
+        t1 = next(t for t in coordinator.tracers() if t["id"] == "t1")
+        assert t1["warm_up"] is not None and t1["node"] == second.node_id != first.node_id
+        frames += list(coordinator.render_animation(frames=[1, 2]))
         assert {r.tracer for r in frames[-1].ranges} == {"t0", "t1"}
+        cluster.remove_node(second)
+        third = cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        frames += list(coordinator.render_animation(frames=[3]))  # t1 is lost in or before it
+        assert coordinator.place_new_nodes() == ["t2"]
+        assert {t["id"]: t["state"] for t in coordinator.tracers()}["t1"] == "retired"
+        deadline = time.monotonic() + 120
+        while "t2" not in coordinator.ready and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert coordinator.info("t2").node == third.node_id
+        frames += list(coordinator.render_animation(frames=[0]))
+        assert {r.tracer for r in frames[-1].ranges} == {"t0", "t2"}
+        coordinator.remove_tracer("t2")
+        assert coordinator.place_new_nodes() == []  # removed on purpose: its node is declined
         for frame in frames:
             assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
     finally:

@@ -66,7 +66,7 @@ def test_parts_are_independent_and_equal():
     waves = [parts[i : i + PARTS] for i in range(0, len(parts), PARTS)]
     assert all(len({p.spp for p in wave}) == 1 for wave in waves)
     assert [wave[0].spp for wave in waves][:7] == [1, 1, 2, 4, 8, 16, 32]
-    assert max(p.spp for p in parts) <= MAX_PART_SPP
+    assert max(p.spp for p in parts) == MAX_PART_SPP  # the cap is reached, never passed
     assert progress.stopped == "max_spp"
     assert progress.part_spp * PARTS == 1024
 
@@ -137,6 +137,7 @@ def test_target_or_budget_whichever_first():
         {"time_budget": 0.0},
         {"time_budget": math.inf},
         {"max_spp": 1},
+        {"max_spp": 3},  # a wave is four parts of at least one sample
     ],
 )
 def test_bad_goals_are_refused(goal):
