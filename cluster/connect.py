@@ -6,7 +6,9 @@ workers' output kept out of the caller's terminal. ``"auto"`` joins the cluster 
 left on this machine; ``"host:port"`` (or ``"ray://host:port"`` for Ray Client) joins that
 one. Before handing an address to Ray, we check that something answering like a gRPC server
 listens there (a TCP connect and an HTTP/2 handshake, a few seconds at most): Ray itself keeps
-retrying an unreachable address for many minutes.
+retrying an unreachable address for many minutes. Joining ``host:port`` also needs a Ray node
+(a raylet) on this machine, which ``ray start --address`` provides: without one, Ray waits a
+minute or two before it fails, so we check for a raylet process first and say what to do.
 
 If Ray is already initialised in this process, ``connect()`` uses that session (an explicit
 ``host:port`` is still checked to be reachable) and says so in the returned
@@ -18,6 +20,7 @@ import os
 import socket
 from dataclasses import dataclass
 
+import psutil
 import ray
 
 PROBE_TIMEOUT = 5.0
@@ -68,6 +71,12 @@ def connect(
         ray.init(address="local", num_cpus=num_cpus, **options)
         return _current(started=True)
     probe(_resolve(address), tls=_tls())
+    if not address.startswith("ray://") and address != "auto" and not local_raylet_running():
+        raise ClusterUnreachable(
+            f"the Ray cluster at {address} answers, but no Ray node runs on this machine, and a "
+            f"Ray driver needs one: start it first with `ray start --address {address} "
+            "--num-cpus 0` (docs/deploy.md), or join through Ray Client (ray://HOST:10001)"
+        )
     try:
         ray.init(address=address, **options)
     except (ConnectionError, RuntimeError, TimeoutError) as error:
@@ -75,6 +84,15 @@ def connect(
             f"cannot join the Ray cluster at {address}: {str(error).splitlines()[0]}"
         ) from None
     return _current(started=False)
+
+
+def local_raylet_running() -> bool:
+    """Whether a Ray node's raylet process runs on this machine (True when processes cannot
+    be listed: then Ray is left to find out)."""
+    try:
+        return any(p.info["name"] == "raylet" for p in psutil.process_iter(["name"]))
+    except psutil.Error:  # pragma: no cover - a restricted /proc
+        return True
 
 
 def _tls() -> bool:

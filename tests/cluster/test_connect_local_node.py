@@ -1,0 +1,49 @@
+"""Joining a cluster by ``host:port`` needs a Ray node on this machine: without one,
+``connect`` says so at once instead of letting Ray wait a minute or two."""
+
+import socket
+import struct
+import threading
+
+import pytest
+import ray
+
+from cluster import connect as connect_module
+from cluster.connect import ClusterUnreachable, connect, disconnect, local_raylet_running
+
+
+def fake_gcs() -> tuple[socket.socket, threading.Thread]:
+    """A server that answers the HTTP/2 preface with a SETTINGS frame, as a gRPC server does."""
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def answer() -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(1024)
+            conn.sendall(struct.pack(">I", 0)[1:] + bytes([0x4, 0, 0, 0, 0, 0]))
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    return server, thread
+
+
+def test_joining_without_a_local_ray_node_fails_at_once_with_what_to_do(monkeypatch):
+    if ray.is_initialized():
+        disconnect()
+    monkeypatch.setattr(connect_module, "local_raylet_running", lambda: False)
+    server, thread = fake_gcs()
+    address = f"127.0.0.1:{server.getsockname()[1]}"
+    with server, pytest.raises(ClusterUnreachable, match="no Ray node runs on this machine"):
+        connect(address)
+    thread.join(5)
+    assert not ray.is_initialized()  # Ray was never asked
+
+
+def test_the_raylet_check_sees_a_running_node():
+    started = not ray.is_initialized()
+    connection = connect(num_cpus=1)
+    try:
+        assert local_raylet_running()
+    finally:
+        if started and connection.started:
+            disconnect()
