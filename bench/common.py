@@ -272,3 +272,38 @@ def _json_default(value: Any) -> Any:
 def fmt_float(value: float | None, digits: int = 2) -> str:
     """A number for a table cell (``-`` for None)."""
     return "-" if value is None else f"{value:.{digits}f}"
+
+
+class TreeWorker:
+    """A warm worker process running ``script`` (``python -c``) with ``args`` against the
+    source tree ``tree`` and its own kernel cache: it answers each request line with one JSON
+    line, and its first line says it is ready (kernels loaded). ``compare_trees`` and
+    ``compare_raycast`` time two trees side by side with two of these."""
+
+    def __init__(self, script: str, args: Sequence[str], tree: str, cache: str) -> None:
+        env = {**os.environ, "PYTHONPATH": tree, "TILERENDER_NUMBA_CACHE": cache}
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", script, *args],
+            cwd=tree,
+            env=env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        self.read()  # warmed up
+
+    def read(self) -> dict:
+        line = self.process.stdout.readline()
+        if not line:
+            raise RuntimeError("a worker process died (see its error output above)")
+        return json.loads(line)
+
+    def ask(self, request: str) -> dict:
+        """Send one request line; return the JSON answer."""
+        self.process.stdin.write(request + "\n")
+        self.process.stdin.flush()
+        return self.read()
+
+    def close(self) -> None:
+        self.process.stdin.close()
+        self.process.wait()

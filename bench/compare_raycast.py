@@ -14,10 +14,6 @@ the answers are bit-identical, and the work counters (node visits plus triangle 
 """
 
 import argparse
-import json
-import os
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -25,6 +21,7 @@ import numpy as np
 from common import (
     REPO_ROOT,
     Series,
+    TreeWorker,
     fmt_float,
     machine_info,
     print_machine,
@@ -117,37 +114,6 @@ HEADERS = [
 ]
 
 
-class Worker:
-    """A warm ray-casting process for one source tree."""
-
-    def __init__(self, tree: str, cache: str, data: Path) -> None:
-        env = {**os.environ, "PYTHONPATH": tree, "TILERENDER_NUMBA_CACHE": cache}
-        self.process = subprocess.Popen(
-            [sys.executable, "-c", WORKER, str(data)],
-            cwd=tree,
-            env=env,
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        self.read()
-
-    def read(self) -> dict:
-        line = self.process.stdout.readline()
-        if not line:
-            raise RuntimeError("a worker process died (see its error output above)")
-        return json.loads(line)
-
-    def cast(self, request: str) -> dict:
-        self.process.stdin.write(request + "\n")
-        self.process.stdin.flush()
-        return self.read()
-
-    def close(self) -> None:
-        self.process.stdin.close()
-        self.process.wait()
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     info = machine_info()
@@ -157,8 +123,8 @@ def main(argv: list[str] | None = None) -> None:
         data = Path(work) / "rays.npz"
         counts = make_rays(args, data)
         workers = {
-            "tree": Worker(args.tree, str(Path(work) / "tree-cache"), data),
-            "base": Worker(args.base, str(Path(work) / "base-cache"), data),
+            "tree": TreeWorker(WORKER, [str(data)], args.tree, str(Path(work) / "tree-cache")),
+            "base": TreeWorker(WORKER, [str(data)], args.base, str(Path(work) / "base-cache")),
         }
         try:
             for key, count in counts.items():
@@ -169,7 +135,7 @@ def main(argv: list[str] | None = None) -> None:
                     for round_index in range(args.repeats):
                         order = ["tree", "base"] if round_index % 2 == 0 else ["base", "tree"]
                         for name in order:
-                            result = workers[name].cast(f"{key.replace('/', ' ')} {query}")
+                            result = workers[name].ask(f"{key.replace('/', ' ')} {query}")
                             series[name].seconds.append(result["seconds"])
                             digests[name].add(result["sha256"])
                             work_done[name] = result["work"]

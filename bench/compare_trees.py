@@ -14,16 +14,13 @@ Get a base tree without touching a working tree, e.g.::
 """
 
 import argparse
-import json
-import os
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 from common import (
     REPO_ROOT,
     Series,
+    TreeWorker,
     console,
     fmt_float,
     machine_info,
@@ -77,34 +74,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-class Worker:
-    """A warm render process for one source tree."""
-
-    def __init__(self, tree: str, cache: str, args: argparse.Namespace) -> None:
-        env = {**os.environ, "PYTHONPATH": tree, "TILERENDER_NUMBA_CACHE": cache}
-        command = [sys.executable, "-c", WORKER, args.scene, str(args.width), str(args.height),
-                   str(args.spp), str(args.threads)]  # fmt: skip
-        self.process = subprocess.Popen(
-            command, cwd=tree, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
-        )
-        self.read()  # warmed up
-
-    def read(self) -> dict:
-        line = self.process.stdout.readline()
-        if not line:
-            raise RuntimeError("a worker process died (see its error output above)")
-        return json.loads(line)
-
-    def render(self) -> dict:
-        self.process.stdin.write("go\n")
-        self.process.stdin.flush()
-        return self.read()
-
-    def close(self) -> None:
-        self.process.stdin.close()
-        self.process.wait()
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     info = machine_info()
@@ -113,13 +82,15 @@ def main(argv: list[str] | None = None) -> None:
     series = {"tree": Series("tree", work), "base": Series("base", work)}
     digests = {"tree": set(), "base": set()}
     with tempfile.TemporaryDirectory() as tree_cache, tempfile.TemporaryDirectory() as base_cache:
-        workers = {"tree": Worker(args.tree, tree_cache, args)}
-        workers["base"] = Worker(args.base, base_cache, args)
+        worker_args = [args.scene, str(args.width), str(args.height), str(args.spp),
+                       str(args.threads)]  # fmt: skip
+        workers = {"tree": TreeWorker(WORKER, worker_args, args.tree, tree_cache)}
+        workers["base"] = TreeWorker(WORKER, worker_args, args.base, base_cache)
         try:
             for round_index in range(args.repeats):
                 order = ["tree", "base"] if round_index % 2 == 0 else ["base", "tree"]
                 for name in order:
-                    result = workers[name].render()
+                    result = workers[name].ask("go")
                     series[name].seconds.append(result["seconds"])
                     digests[name].add(result["sha256"])
         finally:
