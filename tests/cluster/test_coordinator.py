@@ -442,19 +442,29 @@ def test_unreachable_addresses_fail_fast(local_ray):
 # --- a node disappears ----------------------------------------------------------------------
 
 
-def test_a_node_removed_mid_animation_does_not_stop_the_job():
-    """A head without CPUs and two worker nodes of one CPU, one tracer each; one worker node
-    is removed while the animation renders. Every frame arrives, equal to render_image; the
-    lost tracer cannot be restarted (no free CPU) and the job goes on without it."""
+@pytest.fixture
+def headless_cluster():
+    """A ``ray.cluster_utils.Cluster`` whose head has no CPUs (the test adds worker nodes and
+    connects), in place of the module's embedded Ray; shut down afterwards."""
     from ray.cluster_utils import Cluster
 
     for other in _coordinators.values():
         other.close()
     _coordinators.clear()
     disconnect()
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0})
+    yield cluster
+    disconnect()
+    cluster.shutdown()
+
+
+def test_a_node_removed_mid_animation_does_not_stop_the_job(headless_cluster):
+    """A head without CPUs and two worker nodes of one CPU, one tracer each; one worker node
+    is removed while the animation renders. Every frame arrives, equal to render_image; the
+    lost tracer cannot be restarted (no free CPU) and the job goes on without it."""
     state = animated(16)
     expected = animation_references(state, range(16))
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0})
+    cluster = headless_cluster
     coordinator = None
     try:
         workers = [cluster.add_node(num_cpus=1) for _ in range(2)]
@@ -480,26 +490,18 @@ def test_a_node_removed_mid_animation_does_not_stop_the_job():
     finally:
         if coordinator is not None:
             coordinator.close()
-        disconnect()
-        cluster.shutdown()
 
 
-def test_a_node_that_joins_gets_a_tracer_from_the_next_frame():
+def test_a_node_that_joins_gets_a_tracer_from_the_next_frame(headless_cluster):
     """One tracer per node (the default) on a head without CPUs and one worker; a second
     worker joins, ``place_new_nodes`` starts a tracer there (once: a second call finds no new
     node), warmed up before it is ready, and the next frames are shared by both, equal to
     render_image. The second worker leaves and a third joins: the lost tracer is retired
     rather than left to come back beside the new one. A tracer removed on purpose is not
     placed again."""
-    from ray.cluster_utils import Cluster
-
-    for other in _coordinators.values():
-        other.close()
-    _coordinators.clear()
-    disconnect()
     state = animated(4)
     expected = animation_references(state, range(4))
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0})
+    cluster = headless_cluster
     coordinator = None
     try:
         first = cluster.add_node(num_cpus=1)
@@ -539,5 +541,3 @@ def test_a_node_that_joins_gets_a_tracer_from_the_next_frame():
     finally:
         if coordinator is not None:
             coordinator.close()
-        disconnect()
-        cluster.shutdown()
