@@ -2,9 +2,11 @@
 
 Cold: ``tilerender render`` of a 32x32, 1 spp Cornell box with ``TILERENDER_NUMBA_CACHE``
 pointing at a fresh, empty directory, so numba compiles every kernel it needs. Warm: the same
-command again with the same cache directory, repeated; this is "warm start to first pixel". For
-scale, the script also times importing the tracer (``python -c "import tracer.render,
-tracer.loader"``) and the bare interpreter (``python -c pass``), interleaved with the warm runs.
+command again with the same cache directory, repeated; this is "warm start to first pixel". A
+still this small renders in the command's own process by default; the same command with
+``--no-in-process`` (through a tracer actor on an embedded Ray) is timed beside it, as are
+importing the tracer (``python -c "import tracer.render, tracer.loader"``) and the bare
+interpreter (``python -c pass``), interleaved with the warm runs.
 """
 
 import argparse
@@ -36,6 +38,7 @@ COLD_TARGET = 30.0
 WARM_TARGET = 3.0
 """Most seconds for a cold and a warm start."""
 CLI = "tilerender render (warm)"
+CLI_RAY = "tilerender render --no-in-process (warm, embedded Ray)"
 IMPORT = "import tracer"
 PYTHON = "python -c pass"
 
@@ -43,7 +46,8 @@ PYTHON = "python -c pass"
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description="Cold and warm start of `tilerender render` (32x32, 1 spp Cornell box) with "
-        "a fresh numba cache, and the cost of importing the tracer. "
+        "a fresh numba cache, warm starts in process and through the embedded Ray, and the cost "
+        "of importing the tracer. "
         "Writes bench/results/startup.json.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
@@ -152,6 +156,7 @@ def measure(args: argparse.Namespace, work: Path) -> dict:
             run_command(command, env, args.timeout)
     contenders = {
         CLI: Contender(lambda _: run_command(command, env, args.timeout)),
+        CLI_RAY: Contender(lambda _: run_command([*command, "--no-in-process"], env, args.timeout)),
         IMPORT: Contender(
             lambda _: run_command(
                 [sys.executable, "-c", "import tracer.render, tracer.loader"], env, args.timeout

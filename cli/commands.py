@@ -11,7 +11,7 @@ import pydantic
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from cli.main import CommandFailed, UsageError
+from cli.main import DEFAULT_BALANCER, CommandFailed, UsageError
 from tracer import numba_cache
 from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene
@@ -123,6 +123,7 @@ def render_to_file(
         "render": settings.model_dump(),
         "effect_plan": effect_plan(scene, settings).to_json(),
         "seconds": round(seconds, 3),
+        "executor": "in-process",
     }
     for path in outputs:
         write_image(path, image, metadata)
@@ -152,12 +153,17 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise UsageError(f"{output.parent}: output directory does not exist")
     from cluster.balance import make_balancer
 
-    make_balancer(args.balancer)  # a wrong name fails before Ray starts
-    quality_goal(args)  # bad --target-error / --time-budget combinations fail early too
+    if args.balancer is not None:
+        make_balancer(args.balancer)  # a wrong name fails before Ray starts
+    goal = quality_goal(args)  # bad --target-error / --time-budget combinations fail early too
     state = load_scene(args.scene)
     camera, settings = settings_for(state, args)
     state = dataclasses.replace(state, camera=camera, render=settings)
     frames = frame_selection(state, args.frames)
+    if runs_in_process(args, camera, settings, still=frames is None, progressive=goal is not None):
+        scene, label = compile_scene(state), Path(args.scene).name
+        render_to_file(scene, camera, settings, [output], args.threads, args.quiet, label)
+        return 0
     if frames is None:
         outputs = [output]
     else:
@@ -165,6 +171,44 @@ def cmd_render(args: argparse.Namespace) -> int:
         outputs = [output.with_name(f"{output.stem}_{f:0{digits}d}{output.suffix}") for f in frames]
     render_through_cluster(state, frames, outputs, args)
     return 0
+
+
+IN_PROCESS_SAMPLES = 1 << 22
+"""Most pixel samples (width x height x spp) of a still that ``render`` runs in its own process
+unless told otherwise: about 1-3 s of rendering on 2 cores, while starting and stopping the
+embedded Ray alone takes about 4.5 s (docs/performance.md, Start-up)."""
+
+
+def runs_in_process(
+    args: argparse.Namespace,
+    camera: fmt.Camera,
+    settings: fmt.RenderSettings,
+    still: bool,
+    progressive: bool,
+) -> bool:
+    """Whether ``render`` renders here, without Ray: ``--in-process``, or by default a small
+    still at a fixed spp with no cluster option given. ``--no-in-process`` never does."""
+    cluster_options = [
+        flag
+        for flag, value in (
+            ("--tracers", args.tracers),
+            ("--balancer", args.balancer),
+            ("--ray-address", args.ray_address),
+        )
+        if value is not None
+    ]
+    if args.in_process:
+        if cluster_options:
+            raise UsageError(f"--in-process renders without Ray: drop {', '.join(cluster_options)}")
+        if not still or progressive:
+            raise UsageError(
+                "--in-process renders a still at a fixed --spp; animations, --target-error and "
+                "--time-budget go through the coordinator"
+            )
+        return True
+    if args.in_process is False or cluster_options or not still or progressive:
+        return False
+    return camera.width * camera.height * settings.spp <= IN_PROCESS_SAMPLES
 
 
 def quality_goal(args: argparse.Namespace, frames: int = 1):
@@ -233,7 +277,7 @@ def render_through_cluster(
             SceneGraph(state),
             tracers=args.tracers,
             cpus_per_tracer=args.threads,
-            balancer=args.balancer,
+            balancer=args.balancer or DEFAULT_BALANCER,
         )
         try:
             if frames is None:
@@ -258,7 +302,8 @@ def frame_metadata(done, args: argparse.Namespace, tracers: int) -> dict:
         "frame": done.frame,
         "scene_version": done.version,
         "tracers": tracers,
-        "balancer": args.balancer,
+        "balancer": args.balancer or DEFAULT_BALANCER,
+        "executor": "ray",
     }
 
 

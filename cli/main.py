@@ -46,6 +46,10 @@ examples:
   tilerender schema > scene-schema.json"""
 
 
+DEFAULT_BALANCER = "cost-aware"
+"""The balancer of ``render`` and ``serve`` when ``--balancer`` is not given."""
+
+
 class UsageError(Exception):
     """A problem with the command line or its inputs, reported in one line."""
 
@@ -334,7 +338,6 @@ def add_bench_parser(sub) -> None:
 def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) -> None:
     from cluster.balance import BALANCERS  # light: numpy only
 
-    default = "cost-aware" if "cost-aware" in BALANCERS else "none"
     parser.add_argument(
         "--tracers",
         type=positive_int,
@@ -342,10 +345,9 @@ def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) ->
     )
     parser.add_argument(
         "--balancer",
-        default=default,
         metavar="NAME",
         help=f"how lines are split among tracers: {', '.join(sorted(BALANCERS))} "
-        f"(default: {default})",
+        f"(default: {DEFAULT_BALANCER})",
     )
     parser.add_argument(
         "--ray-address",
@@ -354,6 +356,15 @@ def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) ->
         "runs on this machine (default: start an embedded local Ray)",
     )
     if frames:
+        parser.add_argument(
+            "--in-process",
+            action=argparse.BooleanOptionalAction,
+            help="render in this process, without Ray (--no-in-process: always through Ray). "
+            "Default: a still of at most 4.2 M pixel samples (width x height x spp) without "
+            "--tracers, --balancer, --ray-address or a quality goal renders in this process, "
+            "since starting and stopping the embedded Ray alone takes about 4.5 s; anything "
+            "else goes through the coordinator",
+        )
         parser.add_argument(
             "--frames",
             metavar="RANGE",

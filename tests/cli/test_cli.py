@@ -48,13 +48,24 @@ def assert_usage_error(code: int, err: str, *words: str) -> None:
 OVERRIDES = ["--width", 10, "--height", 6, "--spp", 3, "--seed", 5, "--max-depth", 3]
 
 
-@pytest.mark.parametrize("threads", [1, 2])
-def test_render_npy_equals_the_library(capsys, tmp_path, tiny_scene_file, threads):
+@pytest.mark.parametrize(
+    ("threads", "executor"), [(1, "--in-process"), (2, "--in-process"), (2, "--no-in-process")]
+)
+def test_render_npy_equals_the_library(capsys, tmp_path, tiny_scene_file, threads, executor):
     """`render -o x.npy` with overrides writes exactly render_image of the scene with those
-    overrides applied (every bit), on any number of threads."""
+    overrides applied (every bit), on any number of threads, in process or through Ray."""
     out = tmp_path / "out.npy"
     code, _, err = run(
-        capsys, "render", tiny_scene_file, "-o", out, *OVERRIDES, "--threads", threads, "-q"
+        capsys,
+        "render",
+        tiny_scene_file,
+        "-o",
+        out,
+        *OVERRIDES,
+        "--threads",
+        threads,
+        executor,
+        "-q",
     )
     assert code == 0, err
     assert err == ""
@@ -66,6 +77,70 @@ def test_render_npy_equals_the_library(capsys, tmp_path, tiny_scene_file, thread
     assert got.dtype == np.float32 and got.shape == (6, 10, 3)
     assert np.array_equal(got, expected)
     assert got.max() > 0
+
+
+def png_metadata(path: Path) -> dict:
+    with Image.open(path) as image:
+        return json.loads(image.text["tilerender"])
+
+
+@pytest.mark.parametrize(
+    ("options", "executor"),
+    [
+        ([], "in-process"),  # a small still
+        (["--no-in-process"], "ray"),
+        (["--tracers", 1], "ray"),
+        (["--balancer", "none"], "ray"),
+        (["--target-error", 0.5, "--max-spp", 4], "ray"),
+    ],
+    ids=["small", "no-in-process", "tracers", "balancer", "target-error"],
+)
+def test_render_chooses_where_to_run(capsys, tmp_path, tiny_scene_file, options, executor):
+    """A small still renders in this process; cluster options, a quality goal or
+    --no-in-process go through the coordinator (the image's metadata says which ran)."""
+    out = tmp_path / "out.png"
+    size = ["--width", 8, "--height", 4]
+    spp = [] if "--target-error" in options else ["--spp", 1]  # the waves choose the spp
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, *size, *spp, *options, "-q")
+    assert code == 0, err
+    assert png_metadata(out)["executor"] == executor
+
+
+def test_large_stills_go_through_the_coordinator(tiny_scene_file):
+    """The default moves to Ray past IN_PROCESS_SAMPLES pixel samples, whatever their shape."""
+    from cli.commands import IN_PROCESS_SAMPLES, runs_in_process
+
+    args = cli_main.build_parser().parse_args(["render", "x.json", "-o", "x.png"])
+    state = load_scene(tiny_scene_file)
+
+    def in_process(width: int, height: int, spp: int) -> bool:
+        camera = override(state.camera, width=width, height=height)
+        settings = override(state.render, spp=spp)
+        return runs_in_process(args, camera, settings, still=True, progressive=False)
+
+    assert IN_PROCESS_SAMPLES == 256 * 256 * 64
+    assert in_process(256, 256, 64) and in_process(2048, 2048, 1)
+    assert not in_process(256, 256, 65) and not in_process(2049, 2048, 1)
+    assert not in_process(64, 64, 1 << 11)
+    assert not runs_in_process(
+        args, state.camera, override(state.render, spp=1), still=False, progressive=False
+    )
+
+
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [
+        (["--tracers", 2], ["--in-process", "--tracers"]),
+        (["--ray-address", "auto", "--balancer", "none"], ["--ray-address", "--balancer"]),
+        (["--target-error", 0.1], ["--in-process", "--target-error"]),
+    ],
+)
+def test_in_process_refuses_cluster_options(capsys, tmp_path, tiny_scene_file, options, words):
+    """--in-process with a cluster option or a quality goal: one line, exit 2, no file."""
+    out = tmp_path / "out.png"
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--in-process", *options)
+    assert_usage_error(code, err, *words)
+    assert not out.exists()
 
 
 def test_render_with_tracers_and_a_balancer(capsys, tmp_path, tiny_scene_file):
@@ -176,16 +251,21 @@ def test_render_mesh_file_alone(capsys, tmp_path):
     assert rgb.shape == (12, 16, 3) and rgb.mean() > 0.01
 
 
-def test_interrupted_render_writes_nothing(capsys, tmp_path, tiny_scene_file, monkeypatch):
+@pytest.mark.parametrize("executor", ["--in-process", "--no-in-process"])
+def test_interrupted_render_writes_nothing(
+    capsys, tmp_path, tiny_scene_file, monkeypatch, executor
+):
     """Ctrl-C during a render exits with 130 and one line, and writes no file."""
+    from cli import commands
     from cluster.coordinator import Coordinator
 
     def interrupt(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(Coordinator, "render_frame", interrupt)
+    monkeypatch.setattr(commands, "render_image", interrupt)
     out = tmp_path / "out.png"
-    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--spp", 1, "-q")
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--spp", 1, executor, "-q")
     assert code == 130
     assert err.strip().splitlines() == ["interrupted; nothing written"]
     assert not out.exists()
