@@ -644,3 +644,15 @@ def test_serve_prints_the_viewer_url_and_stops_on_ctrl_c(tmp_path):
         assert (tmp_path / "data" / "tilerender.db").is_file()
     finally:
         assert server.stop() == 0
+
+
+def test_serve_balancer_flag_overrides_the_environment_only_when_given(monkeypatch):
+    """TILERENDER_BALANCER holds unless --balancer is given (the flag has no default of its
+    own that would hide the variable)."""
+    from cli.commands import serve_settings
+
+    monkeypatch.setenv("TILERENDER_BALANCER", "perfect")
+    parser = cli_main.build_parser()
+    assert serve_settings(parser.parse_args(["serve"])).balancer == "perfect"
+    given = parser.parse_args(["serve", "--balancer", "none"])
+    assert serve_settings(given).balancer == "none"
