@@ -30,6 +30,7 @@ extra), ``bench/results/balance_sim.png`` (idle % per frame, after Bikker's figu
 """
 
 import argparse
+import heapq
 import itertools
 import math
 import time
@@ -52,6 +53,7 @@ from common import (
 from cluster.balance import (
     BALANCERS,
     CostAware,
+    CostAwareTail,
     PerfectSmooth,
     RobinHood,
     TracerReport,
@@ -140,6 +142,96 @@ def simulate(
     return idle
 
 
+def simulate_calls(
+    balancer,
+    cost: np.ndarray,
+    speeds: np.ndarray,
+    jitter: np.ndarray,
+    overhead: float,
+    latency: float,
+    gap: float,
+    lag: int = 0,
+) -> dict[str, np.ndarray]:
+    """Every frame of ``cost`` as the coordinator runs it, call by call (:func:`frame_calls`).
+    Returns per frame: ``idle`` (Table 16's measure with the gaps between a tracer's calls
+    counted as idle: every tracer's window runs from its first render to the latest end of
+    any), ``span_idle`` (from the first send to the last result: latency included), ``wall``
+    (that span, seconds) and ``calls``."""
+    frames, height = cost.shape
+    ids = [f"t{i:03d}" for i in range(speeds.size)]
+    out = {k: np.empty(frames) for k in ("idle", "span_idle", "wall", "calls")}
+    pending: list[list[TracerReport]] = []
+    for f in range(frames):
+        plan = balancer.plan(height, ids) if hasattr(balancer, "plan") else None
+        heads = plan.heads if plan is not None else balancer.split(height, ids)
+        times = speeds / jitter[f]  # this frame's speeds
+        measures, reports = frame_calls(cost[f], times, ids, heads, plan, overhead, latency, gap)
+        for key, value in measures.items():
+            out[key][f] = value
+        pending.append(reports)
+        while len(pending) > lag:
+            balancer.observe(height, pending.pop(0))
+    return out
+
+
+def frame_calls(
+    line_cost: np.ndarray,
+    speeds: np.ndarray,
+    ids: list[str],
+    heads: list[tuple[int, int]],
+    plan,
+    overhead: float,
+    latency: float,
+    gap: float,
+) -> tuple[dict[str, float], list[TracerReport]]:
+    """One frame, call by call: a call reaches its tracer ``latency`` seconds after it is
+    sent, waits for the tracer's earlier calls (Ray runs an actor's calls in order), starts
+    ``gap`` seconds after the tracer is free (the call's cost outside rendering), renders
+    ``cost / speed + overhead`` seconds, and its result is back ``latency`` seconds later.
+    Every tracer gets its head at once; with a ``plan`` (the dynamic tail) also one chunk
+    queued behind it, and another whenever one of its results comes back."""
+    count = speeds.size
+    free = np.zeros(count)  # when each tracer is done with the calls it got so far
+    first = np.full(count, np.inf)
+    busy = np.zeros(count)
+    events: list[tuple[float, int]] = []
+    reports: list[TracerReport] = []
+
+    def send(i: int, y0: int, y1: int, now: float) -> None:
+        start = max(now + latency, free[i]) + gap
+        seconds = line_cost[y0:y1].sum() / speeds[i] + overhead
+        free[i] = start + seconds
+        first[i] = min(first[i], start)
+        busy[i] += seconds
+        heapq.heappush(events, (free[i] + latency, i))
+        reports.append(
+            TracerReport(ids[i], y0, y1, float(seconds), line_cost[y0:y1].astype(np.int64))
+        )
+
+    for i, (y0, y1) in enumerate(heads):
+        if y1 > y0:
+            send(i, y0, y1, 0.0)
+    for i in range(count if plan is not None else 0):
+        chunk = plan.next_chunk(ids[i])
+        if chunk is not None:
+            send(i, *chunk, 0.0)
+    end = 0.0
+    while events:
+        end, i = heapq.heappop(events)
+        chunk = plan.next_chunk(ids[i]) if plan is not None else None
+        if chunk is not None:
+            send(i, *chunk, end)
+    worked = np.isfinite(first)
+    window = float(np.max(free[worked] - first[worked])) if worked.any() else 0.0
+    measures = {
+        "idle": 100 * float(np.sum(window - busy)) / (count * window) if window else 0.0,
+        "span_idle": 100 * float(np.sum(end - busy)) / (count * end) if end else 0.0,
+        "wall": end,
+        "calls": float(len(reports)),
+    }
+    return measures, reports
+
+
 def summarise(idle: np.ndarray) -> dict[str, float]:
     """Mean over all frames; mean, 95th percentile and maximum over the steady frames."""
     steady = idle[STEADY_FROM:] if idle.size > STEADY_FROM else idle
@@ -194,6 +286,84 @@ def run(args, factories: dict, jitter_sigma: float, lag: int, keep_frames: bool)
                     entry["balancers"][name]["per_frame"] = np.round(idle, 2)
             results[orbit][label] = entry
     return results
+
+
+def run_calls(args, factories: dict, jitter_sigma: float, lag: int) -> dict:
+    """Every balancer of ``factories`` through :func:`simulate_calls` on every orbit and
+    tracer count; ``{orbit: {T: {"noise_floor": ..., "balancers": {name: summary}}}}`` where a
+    summary holds the means over all frames of idle, span idle, wall (ms) and calls."""
+    results: dict = {}
+    for orbit in args.orbits:
+        cost = load_trace(orbit)[: args.frames]
+        frames, _ = cost.shape
+        mean_frame_cost = float(cost.sum(axis=1).mean())
+        results[orbit] = {}
+        for label, count, equal in scenarios(args.tracers, not args.no_equal):
+            rel = tracer_speeds(count, equal, args.seed, *args.speed_range)
+            speeds = rel * mean_frame_cost / (rel.sum() * args.frame_ms * 1e-3)
+            rng = np.random.default_rng([args.seed, count, int(equal)])
+            jitter = np.exp(jitter_sigma * rng.standard_normal((frames, count)))
+            entry = {
+                "tracers": count,
+                "noise_floor": float(
+                    np.mean([idle_percent(args.frame_ms * j + args.overhead_ms) for j in jitter])
+                ),
+                "balancers": {},
+            }
+            for name, factory in factories.items():
+                out = simulate_calls(
+                    factory(),
+                    cost,
+                    speeds,
+                    jitter,
+                    args.overhead_ms * 1e-3,
+                    args.latency_ms * 1e-3,
+                    args.call_gap_ms * 1e-3,
+                    lag,
+                )
+                entry["balancers"][name] = {
+                    "idle": float(out["idle"].mean()),
+                    "idle_steady": float(out["idle"][STEADY_FROM:].mean()),
+                    "span_idle": float(out["span_idle"].mean()),
+                    "wall_ms": float(1e3 * out["wall"].mean()),
+                    "calls_per_tracer": float(out["calls"].mean() / count),
+                }
+            results[orbit][label] = entry
+    return results
+
+
+def print_calls(results: dict, title: str) -> None:
+    """A row per orbit and balancer, a column per tracer count: ``idle / span idle / wall ms /
+    calls per tracer``; the noise floor on its own row."""
+    rows = []
+    for orbit, by_label in results.items():
+        labels = list(by_label)
+        names = list(by_label[labels[0]]["balancers"])
+        floors = (f"{by_label[k]['noise_floor']:5.2f}" for k in labels)
+        rows.append([f"{orbit} noise floor", *floors])
+        for name in names:
+            cells = []
+            for label in labels:
+                d = by_label[label]["balancers"][name]
+                cells.append(
+                    f"{d['idle']:5.2f} /{d['span_idle']:5.2f} /{d['wall_ms']:6.1f} /"
+                    f"{d['calls_per_tracer']:4.1f}"
+                )
+            rows.append([f"{orbit} {name}", *cells])
+    labels = list(next(iter(results.values())))
+    print_table(title, ["orbit, balancer", *(f"T={k}" for k in labels)], rows)
+
+
+def tail_variants() -> dict:
+    """The static split and the dynamic tail with one constant changed at a time."""
+    variants: dict = {"cost-aware": CostAware, "tail (defaults)": CostAwareTail}
+    for fraction in (0.8, 0.85, 0.95, 0.97):
+        variants[f"tail fraction={fraction}"] = lambda x=fraction: CostAwareTail(fraction=x)
+    for divisor in (1.0, 1.5, 3.0, 4.0):
+        variants[f"tail divisor={divisor}"] = lambda x=divisor: CostAwareTail(divisor=x)
+    for least in (0.0, 0.01, 0.04, 0.08):
+        variants[f"tail min_chunk={least}"] = lambda x=least: CostAwareTail(min_chunk=x)
+    return variants
 
 
 def print_results(results: dict, title: str) -> None:
@@ -436,6 +606,32 @@ def main(argv: list[str] | None = None) -> int:
         "--jitter if not run)",
     )
     parser.add_argument("--no-plot", action="store_true", help="do not write the PNG plot")
+    parser.add_argument(
+        "--calls",
+        action="store_true",
+        help="instead of the tables above: the call-level model (latency, the gap between a "
+        "tracer's calls) for the balancers given with --balancers (default cost-aware and "
+        "cost-aware-tail), with idle, span idle, wall time and calls per tracer",
+    )
+    parser.add_argument(
+        "--tail-sweep",
+        action="store_true",
+        help="with --calls: the dynamic tail's constants, one changed at a time",
+    )
+    parser.add_argument(
+        "--latency-ms",
+        type=float,
+        default=0.5,
+        help="--calls: one-way coordinator-tracer latency (default %(default)s ms: half the "
+        "1.0 ms a 1-line render call's round trip exceeds its render time, bench/cluster.py)",
+    )
+    parser.add_argument(
+        "--call-gap-ms",
+        type=float,
+        default=0.6,
+        help="--calls: a tracer's time outside rendering per call when calls are queued "
+        "back to back (default %(default)s ms, bench/cluster.py --skip scaling idle recovery)",
+    )
     args = parser.parse_args(argv)
     if args.frames < 1 or min(args.tracers) < 1 or min(args.jitter) < 0 or args.overhead_ms < 0:
         parser.error("--frames and --tracers must be positive, --jitter and --overhead-ms >= 0")
@@ -450,6 +646,8 @@ def main(argv: list[str] | None = None) -> int:
     print_machine(machine)
     start = time.perf_counter()
     options = dict(vars(args))
+    if args.calls:
+        return main_calls(args, options, machine)
     if args.sweep:
         factories = sweep_variants()
     else:
@@ -487,6 +685,37 @@ def main(argv: list[str] | None = None) -> int:
         RESULTS_DIR.mkdir(parents=True, exist_ok=True)
         key = result_key(shown, args.lag[0])
         plot(all_results[key], RESULTS_DIR / f"{args.name}.png", key)
+    return 0
+
+
+def main_calls(args, options: dict, machine: dict) -> int:
+    """The call-level comparison (``--calls``): tables per jitter and lag, JSON results."""
+    if args.tail_sweep:
+        factories = tail_variants()
+    else:
+        names = [n for n in args.balancers if n != ORACLE]
+        if names == [n for n in BALANCERS]:  # the default: the static split and the tail
+            names = ["cost-aware", "cost-aware-tail"]
+        factories = {name: (lambda n=name: make_balancer(n)) for name in names}
+    start = time.perf_counter()
+    all_results = {}
+    for lag in args.lag:
+        for sigma in args.jitter:
+            key = result_key(sigma, lag)
+            all_results[key] = run_calls(args, factories, sigma, lag)
+            print_calls(
+                all_results[key],
+                f"{'tail sweep: ' if args.tail_sweep else ''}calls: idle % (gaps count) / span "
+                f"idle % (latency counts) / wall ms / calls per tracer, means over "
+                f"{args.frames} frames; {key}",
+            )
+    console.print(
+        f"[dim]latency {args.latency_ms:g} ms each way, {args.call_gap_ms:g} ms per call "
+        f"outside rendering, {args.overhead_ms:g} ms per call inside, balanced frame "
+        f"{args.frame_ms:g} ms; {time.perf_counter() - start:.1f} s[/]"
+    )
+    name = args.name or ("balance_tail_sweep" if args.tail_sweep else "balance_tail")
+    write_results(name, {"options": options, "results": all_results}, machine)
     return 0
 
 

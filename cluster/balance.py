@@ -16,6 +16,8 @@ Balancers (``make_balancer(name)``; formulas and measurements in ``docs/balancin
 - ``cost-aware``: predicts every line's cost from the previous frames' per-line costs and each
   tracer's speed in cost units per second, and cuts the frame so the predicted times are equal
   (the min-max contiguous partition of the predicted costs).
+- ``cost-aware-tail`` (``cluster.tail``): ``cost-aware``'s split sent as a head of about 90% of
+  each range, the rest handed out in shrinking chunks to whichever tracer finishes first.
 
 State is kept per tracer id, so tracers may join and leave between frames: an id a balancer has
 not seen gets a default (an even or mean share). Balancers are deterministic: the same calls
@@ -25,12 +27,13 @@ give the same splits.
 import bisect
 import itertools
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-LineRange = tuple[int, int]
+from cluster.tail import LineRange, TailPlan, cut_head
 
 
 @dataclass(frozen=True)
@@ -461,6 +464,21 @@ class CostAware(Balancer):
 
     def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
         _check_reports(height, reports)
+        for r in reports:
+            self._observe_speed(r.tracer, float(np.sum(r.line_cost)), r.seconds)
+        self._observe_profile(height, reports)
+
+    def _observe_speed(self, tracer: str, spent: float, seconds: float) -> None:
+        """One smoothing step of ``tracer``'s cost and seconds (skipped without cost or a
+        usable time)."""
+        if not (spent > 0.0 and _usable(seconds)):
+            return
+        work, time, count = self._work.get(tracer, (0.0, 0.0, 0))
+        g = max(self.speed_alpha, 1.0 / (count + 1))  # plain means until 1/gamma frames
+        self._work[tracer] = ((1 - g) * work + g * spent, (1 - g) * time + g * seconds, count + 1)
+
+    def _observe_profile(self, height: int, reports: Sequence[TracerReport]) -> None:
+        """Score the forecasters against the frame's line costs, then update them."""
         if height == 0 or not reports:
             return
         cost = np.zeros(height)
@@ -468,15 +486,6 @@ class CostAware(Balancer):
         for r in reports:
             cost[r.y0 : r.y1] = np.asarray(r.line_cost, dtype=np.float64)
             seen[r.y0 : r.y1] = True
-            spent = float(np.sum(r.line_cost))
-            if spent > 0.0 and _usable(r.seconds):
-                work, time, count = self._work.get(r.tracer, (0.0, 0.0, 0))
-                g = max(self.speed_alpha, 1.0 / (count + 1))  # plain means until 1/gamma frames
-                self._work[r.tracer] = (
-                    (1 - g) * work + g * spent,
-                    (1 - g) * time + g * r.seconds,
-                    count + 1,
-                )
         if not seen.any():
             return
         known = self._predictors[0].level is not None
@@ -578,8 +587,120 @@ def _resample(profile: np.ndarray, height: int) -> np.ndarray:
     return np.diff(np.interp(at, np.arange(profile.size + 1), prefix))
 
 
+# --- cost-aware with a dynamic tail -------------------------------------------------------------
+
+
+class CostAwareTail(CostAware):
+    """``cost-aware`` with a dynamic tail (module docstring). ``split`` is the plain cost-aware
+    partition (for callers that need one range per tracer); ``plan`` gives heads and a tail.
+
+    The tail's share follows how well heads were predicted: ``Z`` times the root mean square
+    of the heads' relative time errors (``seconds / predicted - 1``, smoothed over frames with
+    weight ``ERROR_ALPHA``), between ``MIN_TAIL`` and ``MAX_TAIL``; ``FIRST_TAIL`` while
+    nothing is known (the first frame is an even split of unknown costs). ``fraction`` fixes
+    the heads' share instead.
+
+    ``observe`` takes any number of reports per tracer (heads and chunks): the profile from
+    all of them, each tracer's speed from the sums of its cost and seconds over the frame (one
+    smoothing step per frame). A report whose seconds are not usable (NaN: lines rendered by a
+    copy or a reassignment) feeds only the profile."""
+
+    name = "cost-aware-tail"
+    Z = 1.5
+    MIN_TAIL = 0.02
+    MAX_TAIL = 0.5
+    FIRST_TAIL = 0.5
+    DIVISOR = 2.0
+    """Guided self-scheduling's k: a chunk is the remaining tail x speed share / k."""
+    MIN_CHUNK = 0.02
+    """Least chunk, as a fraction of a tracer's predicted frame time: every call costs about
+    a millisecond of the tracer's time outside rendering (docs/balancing.md)."""
+    HEADS_KEPT = 64
+
+    def __init__(
+        self,
+        fraction: float | None = None,
+        divisor: float = DIVISOR,
+        min_chunk: float = MIN_CHUNK,
+        z: float = Z,
+        **cost_aware,
+    ) -> None:
+        super().__init__(**cost_aware)
+        if fraction is not None and not 0.0 < fraction <= 1.0:
+            raise ValueError("fraction must be in (0, 1]")
+        if not divisor > 0.0 or not 0.0 <= min_chunk < 1.0 or not z >= 0.0:
+            raise ValueError("divisor must be positive, min_chunk in [0, 1) and z >= 0")
+        self.fraction = fraction
+        self.divisor = divisor
+        self.min_chunk = min_chunk
+        self.z = z
+        self._heads: dict[tuple[str, int, int], float] = {}  # predicted seconds of heads
+        self._error2: float | None = None  # smoothed squared relative error of heads
+
+    def head_fraction(self) -> float:
+        """Share of each tracer's predicted cost sent as its head."""
+        if self.fraction is not None:
+            return self.fraction
+        if self._error2 is None:
+            known = self._predictors[0].level is not None and self._work
+            return 1.0 - (self.MAX_TAIL * 0.2 if known else self.FIRST_TAIL)
+        tail = self.z * math.sqrt(self._error2)
+        return 1.0 - min(max(tail, self.MIN_TAIL), self.MAX_TAIL)
+
+    def plan(self, height: int, tracers: Sequence[str]) -> TailPlan:
+        """Heads (one per tracer, in order) and the tail of the next frame."""
+        ranges = self.split(height, tracers)
+        profile = self.predicted_profile(height)
+        prefix = np.concatenate(([0.0], np.cumsum(profile)))
+        speeds = self.speeds(tracers)
+        fraction = self.head_fraction()
+        known = self._predictors[0].level is not None
+        heads: list[LineRange] = []
+        tail: list[tuple[float, int, int]] = []
+        for tracer, speed, (a, b) in zip(tracers, speeds, ranges, strict=True):
+            head, rest = cut_head(prefix, a, b, fraction)
+            heads.append(head)
+            if head[1] > head[0] and known and tracer in self._work:  # a real prediction
+                self._heads[(tracer, *head)] = (prefix[head[1]] - prefix[head[0]]) / speed
+            if rest[1] > rest[0]:
+                per_line = (prefix[rest[1]] - prefix[rest[0]]) / (rest[1] - rest[0])
+                tail.append((-per_line, rest[0], rest[1]))
+        while len(self._heads) > self.HEADS_KEPT:
+            self._heads.pop(next(iter(self._heads)))
+        segments = deque([y0, y1] for _, y0, y1 in sorted(tail))  # dearest first
+        return TailPlan(
+            list(tracers),
+            heads,
+            prefix,
+            {t: float(v) for t, v in zip(tracers, speeds, strict=True)},
+            self.divisor,
+            self.min_chunk,
+            segments,
+        )
+
+    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
+        _check_reports(height, reports)
+        work: dict[str, list[float]] = {}
+        for r in reports:
+            sums = work.setdefault(r.tracer, [0.0, 0.0])
+            if r.y1 > r.y0 and _usable(r.seconds):
+                sums[0] += float(np.sum(r.line_cost))
+                sums[1] += r.seconds
+                predicted = self._heads.pop((r.tracer, r.y0, r.y1), None)
+                if predicted is not None and predicted > 0.0:
+                    miss = min(1.0, (r.seconds / predicted - 1.0) ** 2)  # one outlier
+                    self._error2 = (
+                        miss
+                        if self._error2 is None
+                        else self._error2 + self.error_alpha * (miss - self._error2)
+                    )
+        for tracer, (spent, seconds) in work.items():
+            self._observe_speed(tracer, spent, seconds)
+        self._observe_profile(height, reports)
+
+
 BALANCERS: dict[str, type[Balancer]] = {
-    cls.name: cls for cls in (Balancer, RobinHood, Perfect, PerfectSmooth, CostAware)
+    cls.name: cls for cls in (Balancer, RobinHood, Perfect, PerfectSmooth, CostAware, CostAwareTail)
 }
 
 

@@ -62,9 +62,10 @@ from ray.exceptions import ActorDiedError, RayActorError, RayError, RayTaskError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from cluster.assembler import Assembler, runs
-from cluster.balance import BALANCERS, TracerReport, even_split, idle_percent, make_balancer
+from cluster.balance import BALANCERS, TracerReport, even_split, make_balancer
 from cluster.connect import connect
 from cluster.scene_graph import SceneGraph
+from cluster.tail import TailPlan
 from tracer import scene_format as fmt
 from tracer.commit_codec import encode_commit, encode_state
 from tracer.scene_model import SceneState
@@ -110,8 +111,9 @@ class RangeReport:
     seconds: float
     apply_seconds: float
     kind: str
-    """``split`` (the balancer's), ``reassigned`` (from a lost tracer), ``duplicate`` (of a
-    straggler) or a resent one (after ``OutOfSync``), named like the range it replaced."""
+    """``split`` (the balancer's; a head with a dynamic tail), ``tail`` (a chunk of the dynamic
+    tail), ``reassigned`` (from a lost tracer), ``duplicate`` (of a straggler) or a resent one
+    (after ``OutOfSync``), named like the range it replaced."""
     pid: int
     node: str
 
@@ -140,6 +142,10 @@ class Frame:
     last line."""
     overhead_seconds: float
     """``wall_seconds`` minus the slowest tracer's busy seconds: scheduling, transfer, waits."""
+    span_idle_percent: float = 0.0
+    """Idle % over the wall time: ``sum_i (wall - t_i) / (T wall)`` (latency counts too)."""
+    calls: int = 0
+    """Render calls whose lines were used (one per tracer without a dynamic tail)."""
     failures: int = 0
     reassigned: int = 0
     duplicates: int = 0
@@ -209,6 +215,10 @@ class FrameJob:
     ranges: list[RangeReport] = field(default_factory=list)
     busy: dict[str, float] = field(default_factory=dict)
     primary: dict[str, LinesResult] = field(default_factory=dict)
+    tail: TailPlan | None = None
+    """The dynamic tail's lines not handed out yet (``cost-aware-tail``)."""
+    arrivals: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    """Per tracer, (arrival time, busy seconds) of each accepted result, in arrival order."""
     result: Frame | None = None
     failures: int = 0
     reassigned: int = 0
@@ -631,12 +641,39 @@ class Coordinator:
             assembler=Assembler(frame, state.version, camera.width, camera.height),
             submitted=now,
         )
-        ranges = self.balancer.split(camera.height, [s.id for s in slots])
+        ids = [s.id for s in slots]
+        plan = getattr(self.balancer, "plan", None)
+        if plan is not None:
+            job.tail = plan(camera.height, ids)
+            ranges = job.tail.heads
+        else:
+            ranges = self.balancer.split(camera.height, ids)
         for slot, (y0, y1) in zip(slots, ranges, strict=True):
             job.split.append((slot.id, y0, y1))
             if y1 > y0:
                 self._submit(job, slot, y0, y1, "split", 1)
+        for slot in slots:  # one chunk queued behind every head
+            self._feed(job, slot)
         return job
+
+    def _feed(self, job: FrameJob, slot: _Slot) -> None:
+        """Send ``slot`` the next chunk of ``job``'s dynamic tail, if any is left."""
+        if job.tail is None or job.tail.empty or slot.state != "ready":
+            return
+        chunk = job.tail.next_chunk(slot.id)
+        if chunk is not None:
+            self._submit(job, slot, *chunk, "tail", 1)
+
+    def _feed_idle(self, job: FrameJob) -> None:
+        """Ready tracers with nothing left in ``job`` (back from a failure, or whose calls
+        failed) take chunks of its tail."""
+        if job.tail is None or job.tail.empty:
+            return
+        busy = {t.slot.id for t in (*job.pending.values(), *self._orphans.values())}
+        for slot in self._slots:
+            if slot.state == "ready" and slot.id not in busy:
+                self._feed(job, slot)
+                self._feed(job, slot)  # and one queued behind it
 
     def _schedulable(self) -> list[_Slot]:
         """Ready tracers, waiting for one if there is none yet; tracers still busy with
@@ -700,7 +737,10 @@ class Coordinator:
             return job.result
         last_progress = time.perf_counter()
         while not job.assembler.complete:
+            self._feed_idle(job)
             if not job.pending:
+                if job.tail is not None:
+                    job.tail.drain()  # nobody can take chunks: the lines are reassigned
                 for y0, y1 in job.assembler.missing():  # defensive: nothing owes these lines
                     self._reassign(job, y0, y1, None, self.max_attempts)
             refs = list(job.pending)
@@ -755,12 +795,33 @@ class Coordinator:
                 self.graph.frame_commit(number)
                 in_flight.append(self.submit_frame(number, camera, settings, sample_start))
 
-        for _ in range(depth):
-            schedule_next()
+        schedule_next()
         while in_flight:
-            done = self.wait_frame(in_flight.pop(0))
-            schedule_next()
-            yield done
+            while len(in_flight) < depth:
+                self._wait_dispatched(in_flight[-1])
+                before = len(in_flight)
+                schedule_next()
+                if len(in_flight) == before:
+                    break  # no frames left
+            yield self.wait_frame(in_flight.pop(0))
+
+    def _wait_dispatched(self, job: FrameJob) -> None:
+        """Collect ``job``'s results until its dynamic tail is all handed out (at once without
+        a tail), so the next frame's calls queue behind its last chunks rather than before
+        them (Ray runs an actor's calls in order)."""
+        last_progress = time.perf_counter()
+        while job.tail is not None and not job.tail.empty and not job.assembler.complete:
+            refs = list(job.pending)
+            if not refs:
+                return  # wait_frame hands the lines out
+            ready, _ = ray.wait(refs, num_returns=1, timeout=POLL_SECONDS)
+            for ref in ready:
+                self._handle(job, ref)
+                last_progress = time.perf_counter()
+            if time.perf_counter() - last_progress > self.stall_timeout:
+                return  # wait_frame reports the stall
+            self._poll_slots()
+            self._feed_idle(job)
 
     def _handle(self, job: FrameJob, ref) -> None:
         task = job.pending.pop(ref)
@@ -780,6 +841,7 @@ class Coordinator:
             return
         now = time.perf_counter()
         slot.last_done = now
+        self._feed(job, slot)  # the next chunk queues while this tracer works on its last
         if isinstance(out, OutOfSync):
             _hold(slot, out.scene, out.have)
             slot.incarnation = out.incarnation
@@ -814,6 +876,7 @@ class Coordinator:
             )
         )
         job.busy[slot.id] = job.busy.get(slot.id, 0.0) + out.seconds + out.apply_seconds
+        job.arrivals.setdefault(slot.id, []).append((now, out.seconds + out.apply_seconds))
         if task.kind == "split":
             job.primary[slot.id] = out
 
@@ -907,6 +970,7 @@ class Coordinator:
         busy = job.busy
         slowest = max(busy.values(), default=0.0)
         wall = now - start
+        span = [max(0.0, wall - min(t, wall)) for t in busy.values()]
         frame = Frame(
             frame=job.frame,
             version=job.version,
@@ -917,9 +981,11 @@ class Coordinator:
             split=list(job.split),
             ranges=sorted(job.ranges, key=lambda r: r.y0),
             tracer_seconds=dict(busy),
-            idle_percent=idle_percent(list(busy.values())) if busy else 0.0,
+            idle_percent=gap_idle_percent(job.arrivals),
             wall_seconds=wall,
             overhead_seconds=max(0.0, wall - slowest),
+            span_idle_percent=100 * sum(span) / (len(span) * wall) if span and wall > 0 else 0.0,
+            calls=len(job.ranges),
             failures=job.failures,
             reassigned=job.reassigned,
             duplicates=job.duplicates,
@@ -937,6 +1003,9 @@ class Coordinator:
         """Tell the balancer what each tracer of the split did. A straggler whose lines came
         from a duplicate reports the time it had run (a lower bound); a lost tracer reports
         nothing (the balancer keeps its prediction for those lines)."""
+        if job.tail is not None:
+            self._observe_tail(job)
+            return
         reports = []
         by_id = {s.id: s for s in self._slots}
         for tracer_id, y0, y1 in job.split:
@@ -949,6 +1018,22 @@ class Coordinator:
                 seconds = now - max(job.submitted, by_id[tracer_id].last_done)
                 cost = job.assembler.cost[y0:y1].copy()
                 reports.append(TracerReport(tracer_id, y0, y1, seconds, cost))
+        if reports:
+            self.balancer.observe(job.camera.height, reports)
+
+    def _observe_tail(self, job: FrameJob) -> None:
+        """Tell a dynamic-tail balancer every accepted range: heads and chunks with their
+        render seconds, lines of copies and reassignments with none (NaN: cost only)."""
+        reports = [
+            TracerReport(
+                r.tracer,
+                r.y0,
+                r.y1,
+                r.seconds if r.kind in ("split", "tail") else math.nan,
+                job.assembler.cost[r.y0 : r.y1].copy(),
+            )
+            for r in job.ranges
+        ]
         if reports:
             self.balancer.observe(job.camera.height, reports)
 
@@ -1005,3 +1090,27 @@ class Coordinator:
 def _first_line(error: BaseException) -> str:
     text = str(error).strip()
     return text.splitlines()[0] if text else type(error).__name__
+
+
+def gap_idle_percent(arrivals: dict[str, list[tuple[float, float]]]) -> float:
+    """Table 16's idle % with several ranges per tracer: a tracer's window runs from the start
+    of its first range to the end of its last, and waiting between its ranges counts as idle.
+    ``arrivals`` holds, per tracer, (arrival time, busy seconds) of its results in arrival
+    order; the gap before a range is its arrival minus the previous arrival minus its busy
+    seconds (the return latency cancels). With one range per tracer this is exactly
+    ``idle_percent`` of the busy seconds."""
+    if not arrivals:
+        return 0.0
+    busy, windows = [], []
+    for results in arrivals.values():
+        total = sum(seconds for _, seconds in results)
+        gaps = sum(
+            max(0.0, (at - before) - seconds)
+            for (before, _), (at, seconds) in itertools.pairwise(results)
+        )
+        busy.append(total)
+        windows.append(total + gaps)
+    longest = max(windows)
+    if longest <= 0.0:
+        return 0.0
+    return 100.0 * sum(longest - b for b in busy) / (len(busy) * longest)

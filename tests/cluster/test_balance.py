@@ -78,7 +78,14 @@ def test_idle_percent_known_values():
 def test_make_balancer_names_the_choices():
     for name in NAMES:
         assert make_balancer(name).name == name
-    assert set(NAMES) == {"none", "robin-hood", "perfect", "perfect-smooth", "cost-aware"}
+    assert set(NAMES) == {
+        "none",
+        "robin-hood",
+        "perfect",
+        "perfect-smooth",
+        "cost-aware",
+        "cost-aware-tail",
+    }
     with pytest.raises(ValueError, match="bogus") as error:
         make_balancer("bogus")
     for name in NAMES:

@@ -1,0 +1,106 @@
+"""The dynamic tail: a cost-aware split whose last lines are handed out while the frame renders.
+
+``cost-aware`` fixes every tracer's range before the frame starts, so any error in the
+predicted costs or speeds (a tracer's speed varies a few percent from frame to frame on a
+shared machine) becomes idle time. ``cost-aware-tail`` keeps its static split for most of the
+work and adapts the rest within the frame:
+
+1. **Heads.** The cost-aware partition ``[a_i, b_i)`` is cut in two: a contiguous *head* worth
+   ``fraction`` of the tracer's predicted cost, sent at once, and the rest of the range, which
+   goes to the tail. The rest is taken from whichever end of the range gives it more lines (the
+   cheaper end: finer chunks for the same cost).
+2. **Tail.** The tail's segments are handed out in chunks of whole, contiguous lines, dearest
+   segments first, so the last chunks are the cheapest (guided self-scheduling): a tracer that
+   asks gets ``remaining predicted cost x its share of the speed / divisor`` (``R / (k T)`` for
+   equal tracers), at least ``min_chunk`` of its predicted frame time and at least one line.
+3. **Queue ahead.** The coordinator sends every tracer its head and one chunk at once, and a
+   new chunk whenever one of its calls returns, so a tracer always has a call queued (Ray runs
+   an actor's calls in order) and never waits for the round trip.
+
+The balancer is ``cluster.balance.CostAwareTail``; this module holds the plan it makes for one
+frame (``TailPlan``) and how a range is cut into head and rest (``cut_head``). Pixels never
+depend on how lines were handed out. Formulas and measurements: ``docs/balancing.md``.
+"""
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+LineRange = tuple[int, int]
+
+
+@dataclass
+class TailPlan:
+    """One frame's heads and its tail: ``next_chunk(tracer)`` hands out the tail."""
+
+    tracers: list[str]
+    heads: list[LineRange]
+    """Each tracer's static range, in tracer order (may be empty)."""
+    prefix: np.ndarray
+    """Prefix sums of the predicted cost per line (length H + 1)."""
+    speeds: dict[str, float]
+    """Predicted speed (cost per second) of each tracer of the split."""
+    divisor: float = 2.0
+    min_chunk: float = 0.0
+    """Least chunk, as a fraction of the tracer's predicted frame time."""
+    segments: deque[list[int]] = field(default_factory=deque)
+    """Tail lines not handed out yet: ``[y0, y1)`` runs in the order they are handed out."""
+
+    @property
+    def empty(self) -> bool:
+        return not self.segments
+
+    @property
+    def tail_lines(self) -> int:
+        return sum(b - a for a, b in self.segments)
+
+    def remaining_cost(self) -> float:
+        """Predicted cost of the lines not handed out yet."""
+        return float(sum(self.prefix[b] - self.prefix[a] for a, b in self.segments))
+
+    def drain(self) -> list[LineRange]:
+        """Every line not handed out yet (the plan is empty afterwards)."""
+        out = [(a, b) for a, b in self.segments]
+        self.segments.clear()
+        return out
+
+    def next_chunk(self, tracer: str) -> LineRange | None:
+        """The next chunk for ``tracer`` (any id: an unknown one counts at the mean speed), or
+        None when the tail is used up."""
+        if not self.segments:
+            return None
+        total_speed = sum(self.speeds.values()) or 1.0
+        speed = self.speeds.get(tracer, total_speed / max(1, len(self.speeds)))
+        share = speed / total_speed
+        frame_cost = float(self.prefix[-1])
+        target = max(
+            self.remaining_cost() * share / self.divisor, self.min_chunk * frame_cost * share
+        )
+        segment = self.segments[0]
+        a, b = segment
+        # The most lines whose predicted cost fits the target, at least one.
+        end = int(np.searchsorted(self.prefix, self.prefix[a] + target, side="right")) - 1
+        end = min(max(end, a + 1), b)
+        if b - end and self.prefix[b] - self.prefix[end] < 0.5 * target:
+            end = b  # do not leave a scrap smaller than half a chunk behind
+        if end >= b:
+            self.segments.popleft()
+        else:
+            segment[0] = end
+        return a, end
+
+
+def cut_head(prefix: np.ndarray, a: int, b: int, fraction: float) -> tuple[LineRange, LineRange]:
+    """(head, rest) of range [a, b): the head holds at most ``fraction`` of its predicted cost,
+    the rest sits at the end of the range that gives it more lines (cheaper lines: finer
+    chunks)."""
+    if b <= a or fraction >= 1.0:
+        return (a, b), (b, b)
+    keep = fraction * (prefix[b] - prefix[a])
+    first = int(np.searchsorted(prefix, prefix[a] + keep, side="right")) - 1
+    last = int(np.searchsorted(prefix, prefix[b] - keep, side="left"))
+    first, last = min(max(first, a), b), min(max(last, a), b)
+    if last - a > b - first:
+        return (last, b), (a, last)
+    return (a, first), (first, b)
