@@ -357,12 +357,18 @@ def print_calls(results: dict, title: str) -> None:
 def tail_variants() -> dict:
     """The static split and the dynamic tail with one constant changed at a time."""
     variants: dict = {"cost-aware": CostAware, "tail (defaults)": CostAwareTail}
-    for fraction in (0.8, 0.85, 0.95, 0.97):
+    for fraction in (0.8, 0.9, 0.95, 0.97):
         variants[f"tail fraction={fraction}"] = lambda x=fraction: CostAwareTail(fraction=x)
     for divisor in (1.0, 1.5, 3.0, 4.0):
         variants[f"tail divisor={divisor}"] = lambda x=divisor: CostAwareTail(divisor=x)
     for least in (0.0, 0.01, 0.04, 0.08):
         variants[f"tail min_chunk={least}"] = lambda x=least: CostAwareTail(min_chunk=x)
+    for seconds in (0.0, 0.0025, 0.01, 0.02):
+        variants[f"tail min_seconds={seconds}"] = lambda x=seconds: CostAwareTail(min_seconds=x)
+    for z in (1.0, 2.0, 3.0):
+        variants[f"tail z={z}"] = lambda x=z: CostAwareTail(z=x)
+    for worth in (0.0, 2.0, 8.0):
+        variants[f"tail calls_worth={worth}"] = lambda x=worth: CostAwareTail(calls_worth=x)
     return variants
 
 
@@ -621,16 +627,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--latency-ms",
         type=float,
-        default=0.5,
+        default=0.6,
         help="--calls: one-way coordinator-tracer latency (default %(default)s ms: half the "
-        "1.0 ms a 1-line render call's round trip exceeds its render time, bench/cluster.py)",
+        "1.15 ms a 1-line render call's round trip exceeds its render time, measured by "
+        "bench/cluster.py --skip scaling idle recovery --orbit-size 640 480)",
     )
     parser.add_argument(
         "--call-gap-ms",
         type=float,
-        default=0.6,
+        default=0.9,
         help="--calls: a tracer's time outside rendering per call when calls are queued "
-        "back to back (default %(default)s ms, bench/cluster.py --skip scaling idle recovery)",
+        "back to back (default %(default)s ms: 0.86 ms measured by the same command)",
     )
     args = parser.parse_args(argv)
     if args.frames < 1 or min(args.tracers) < 1 or min(args.jitter) < 0 or args.overhead_ms < 0:

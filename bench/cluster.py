@@ -12,6 +12,9 @@ real tracers (Bikker's Table 16), and recovery from a killed tracer.
    of one CPU each, every balancer; mean idle % (Table 16's measure) over the frames.
 4. **Recovery**: a tracer killed in the middle of a frame; time from the kill to the frame's
    completion, against the same frame without a failure.
+5. **Calls**: what a render call costs a tracer outside rendering (round trip, and the gap
+   between calls queued back to back): the dynamic tail pays it per chunk, and the simulator's
+   ``--latency-ms`` / ``--call-gap-ms`` come from it.
 """
 
 import argparse
@@ -25,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import ray
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # for `common`
 
@@ -144,33 +148,106 @@ def speed_noise(frames: list) -> float:
 
 
 def idle_real(frames: int, balancers: list[str], width: int, height: int, oracle: bool) -> dict:
-    """Mean idle % per orbit and balancer with two one-CPU tracers; with ``oracle``, also the
-    hindsight split (:class:`HindsightSplit`) of the costs the first balancer's run recorded,
-    and the timing noise of every run."""
+    """Idle per orbit and balancer with two one-CPU tracers each, the balancers' coordinators
+    taking turns frame by frame (so load on a shared machine hits them alike); with
+    ``oracle``, also the hindsight split (:class:`HindsightSplit`) of the costs the first
+    balancer's run records as it goes. Per run: mean idle % (Table 16's measure, waits between
+    a tracer's ranges counted), mean span idle % (over the wall time), mean wall ms per frame,
+    frames per second, render calls per frame and the timing noise."""
     state, _ = load_orbit_scene()
     settings = state.render.model_copy(update={"spp": 1})
-    results: dict[str, dict[str, float]] = {}
-    noise: dict[str, dict[str, float]] = {}
+    names = [*balancers, *(["oracle"] if oracle else [])]
+    out: dict = {key: {} for key in ("slow", "fast", "speed_noise_percent", "runs")}
     for orbit in ("slow", "fast"):
         degrees = ORBITS[orbit][0]
         cameras = [orbit_camera(degrees * k / frames, width, height) for k in range(frames)]
-        results[orbit], noise[orbit] = {}, {}
         recorded: list[np.ndarray] = []
-        for name in [*balancers, *(["oracle"] if oracle else [])]:
-            with Coordinator(SceneGraph(state), tracers=2, cpus_per_tracer=1.0) as c:
+        coordinators = {}
+        try:
+            for name in names:
+                c = Coordinator(SceneGraph(state), tracers=2, cpus_per_tracer=1.0)
+                coordinators[name] = c
                 if name == "oracle":
                     c.balancer = HindsightSplit(recorded)
                 else:
                     c.use_balancer(name)
-                done = orbit_run(c, cameras, settings)
-            recorded = recorded or [done[0].cost, *(f.cost for f in done)]
-            results[orbit][name] = statistics.fmean(f.idle_percent for f in done)
-            noise[orbit][name] = speed_noise(done)
+            done: dict[str, list] = {name: [] for name in names}
+            for name, c in coordinators.items():  # warm-up frame
+                warm = c.render_frame(camera=cameras[0], settings=settings)
+                if name == names[0]:
+                    recorded.append(warm.cost)
+            for k, camera in enumerate(cameras):
+                for name, c in coordinators.items():
+                    frame = c.render_frame(frame=k, camera=camera, settings=settings)
+                    done[name].append(frame)
+                    if name == names[0]:
+                        recorded.append(frame.cost)
+        finally:
+            for c in coordinators.values():
+                c.close()
+        out["speed_noise_percent"][orbit] = {}
+        out["runs"][orbit] = {}
+        for name in names:
+            run = done[name]
+            walls = [f.wall_seconds for f in run]
+            out[orbit][name] = statistics.fmean(f.idle_percent for f in run)
+            out["speed_noise_percent"][orbit][name] = speed_noise(run)
+            out["runs"][orbit][name] = {
+                "idle": out[orbit][name],
+                "span_idle": statistics.fmean(f.span_idle_percent for f in run),
+                "wall_ms": 1e3 * statistics.fmean(walls),
+                "frames_per_second": len(run) / sum(walls),
+                "calls_per_frame": statistics.fmean(f.calls for f in run),
+                "idle_per_frame": [round(f.idle_percent, 3) for f in run],
+            }
             note(
-                f"{orbit} orbit, {name}: {results[orbit][name]:.2f}% idle, "
-                f"speed noise {noise[orbit][name]:.1f}%"
+                f"{orbit} orbit, {name}: {out[orbit][name]:.2f}% idle, span "
+                f"{out['runs'][orbit][name]['span_idle']:.2f}%, "
+                f"{out['runs'][orbit][name]['wall_ms']:.1f} ms per frame, speed noise "
+                f"{out['speed_noise_percent'][orbit][name]:.1f}%"
             )
-    return {**results, "speed_noise_percent": noise}
+    return out
+
+
+def call_costs(width: int, height: int, repeats: int) -> dict:
+    """What a render call costs a real tracer outside rendering (the simulator's
+    ``--latency-ms`` and ``--call-gap-ms``), on the orbit scene at ``width`` x ``height``:
+    the round trip of a one-line call minus its render seconds, and the time between calls
+    queued back to back (30 four-line calls behind a long one, so none waits for its
+    submission): their wall time minus busy time and one round trip, per call."""
+    state, _ = load_orbit_scene()
+    settings = state.render.model_copy(update={"spp": 1})
+    camera = orbit_camera(0.0, width, height)
+    trips, gaps = [], []
+    with Coordinator(SceneGraph(state), tracers=1, cpus_per_tracer=1.0) as c:
+        version = c.render_frame(camera=camera, settings=settings).version
+        handle = c.tracer_handle(c.ready[0])
+
+        def call(y0: int, y1: int):
+            return handle.render.remote(
+                0, version, [], camera, settings, y0, y1, 0, None, c.graph.key
+            )
+
+        for _ in range(repeats):
+            for _ in range(10):
+                start = time.perf_counter()
+                out = ray.get(call(height // 4, height // 4 + 1))
+                trips.append(time.perf_counter() - start - out.seconds - out.apply_seconds)
+            trip = statistics.median(trips[-10:])
+            start = time.perf_counter()
+            refs = [call(height // 2, height)] + [
+                call(height - 40 + k, height - 36 + k) for k in range(30)
+            ]
+            outs = ray.get(refs)
+            wall = time.perf_counter() - start
+            busy = sum(o.seconds + o.apply_seconds for o in outs)
+            gaps.append((wall - busy - trip) / 30)
+    return {
+        "round_trip_minus_render_ms": 1e3 * statistics.median(trips),
+        "queued_gap_ms": 1e3 * statistics.median(gaps),
+        "queued_gap_ms_all": [round(1e3 * g, 3) for g in gaps],
+        "size": [width, height],
+    }
 
 
 def recovery(size: int, spp: int) -> dict:
@@ -217,7 +294,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=128, help="orbit frames (128)")
     parser.add_argument("--orbit-size", type=int, nargs=2, default=[128, 96], metavar=("W", "H"))
     parser.add_argument("--balancers", nargs="+", default=list(BALANCERS), choices=list(BALANCERS))
-    parser.add_argument("--skip", nargs="*", default=[], choices=["scaling", "idle", "recovery"])
+    parser.add_argument(
+        "--skip", nargs="*", default=[], choices=["scaling", "idle", "recovery", "calls"]
+    )
     parser.add_argument(
         "--no-oracle",
         action="store_true",
@@ -232,7 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     info = machine_info()
     print_machine(info)
     # Room for every set-up's tracers at once (they take turns; only one renders at a time).
-    connect(num_cpus=int(sum(n * cpus for n, cpus in SETUPS.values())))
+    runs = len(args.balancers) + (0 if args.no_oracle else 1)
+    connect(num_cpus=max(int(sum(n * cpus for n, cpus in SETUPS.values())), 2 * runs))
     payload: dict = {"options": vars(args)}
     try:
         if "scaling" not in args.skip:
@@ -272,13 +352,35 @@ def main(argv: list[str] | None = None) -> int:
             idle = idle_real(args.frames, args.balancers, width, height, not args.no_oracle)
             payload["idle_real"] = idle
             rows = [*args.balancers, *([] if args.no_oracle else ["oracle"])]
-            noise = idle["speed_noise_percent"]
+            noise, runs = idle["speed_noise_percent"], idle["runs"]
+
+            def both(b: str, key: str, digits: int = 2) -> str:
+                return f"{runs['slow'][b][key]:.{digits}f} / {runs['fast'][b][key]:.{digits}f}"
+
             print_table(
-                f"Idle % with 2 real tracers (1 CPU each), {args.frames} frames, {width}x{height}"
-                " (speed noise: CV of each tracer's cost per second over frames)",
-                ["balancer", "slow orbit", "fast orbit", "speed noise slow / fast"],
+                f"Idle % with 2 real tracers (1 CPU each), {args.frames} frames, {width}x{height},"
+                " balancers taking turns frame by frame (idle: Table 16's measure, waits between"
+                " a tracer's ranges counted; span: over the wall time; speed noise: CV of each"
+                " tracer's cost per second over frames)",
+                ["balancer", "slow orbit", "fast orbit", "span idle slow / fast",
+                 "ms per frame slow / fast", "frames/s slow / fast", "calls per frame",
+                 "speed noise slow / fast"],
                 [[b, fmt_float(idle["slow"][b]), fmt_float(idle["fast"][b]),
+                  both(b, "span_idle"), both(b, "wall_ms", 1), both(b, "frames_per_second"),
+                  both(b, "calls_per_frame", 1),
                   f"{noise['slow'][b]:.1f}% / {noise['fast'][b]:.1f}%"] for b in rows],
+            )  # fmt: skip
+        if "calls" not in args.skip:
+            width, height = args.orbit_size
+            calls = call_costs(width, height, max(3, args.repeats))
+            payload["calls"] = calls
+            print_table(
+                f"A render call's cost outside rendering (orbit scene, {width}x{height}; the "
+                "simulator's --latency-ms is half the round trip, --call-gap-ms the queued gap)",
+                ["round trip - render ms", "queued gap ms per call", "queued gap, each round"],
+                [[fmt_float(calls["round_trip_minus_render_ms"], 3),
+                  fmt_float(calls["queued_gap_ms"], 3),
+                  ", ".join(f"{g:.2f}" for g in calls["queued_gap_ms_all"])]],
             )  # fmt: skip
         if "recovery" not in args.skip:
             rec = recovery(args.overhead_size, args.spp * 4)

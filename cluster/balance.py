@@ -613,8 +613,17 @@ class CostAwareTail(CostAware):
     DIVISOR = 2.0
     """Guided self-scheduling's k: a chunk is the remaining tail x speed share / k."""
     MIN_CHUNK = 0.02
-    """Least chunk, as a fraction of a tracer's predicted frame time: every call costs about
-    a millisecond of the tracer's time outside rendering (docs/balancing.md)."""
+    """Least chunk, as a fraction of a tracer's predicted frame time."""
+    MIN_SECONDS = 0.005
+    """Least chunk in predicted seconds: every call costs a tracer about a millisecond outside
+    rendering on the development machine (bench/cluster.py, docs/balancing.md), so a chunk
+    should be worth several calls."""
+    CALL_SECONDS = 0.001
+    """A render call's cost to a tracer outside rendering (0.86 ms queued, bench/cluster.py)."""
+    CALLS_WORTH = 4.0
+    """No tail unless the heads' typical error (rms, in seconds) exceeds this many calls: a
+    static split idles about half that error, a tail costs at least one more call per tracer
+    and its last chunks' mismatch (simulator: ``bench/balance_sim.py --calls``)."""
     HEADS_KEPT = 64
 
     def __init__(
@@ -622,30 +631,42 @@ class CostAwareTail(CostAware):
         fraction: float | None = None,
         divisor: float = DIVISOR,
         min_chunk: float = MIN_CHUNK,
+        min_seconds: float = MIN_SECONDS,
         z: float = Z,
+        call_seconds: float = CALL_SECONDS,
+        calls_worth: float = CALLS_WORTH,
         **cost_aware,
     ) -> None:
         super().__init__(**cost_aware)
         if fraction is not None and not 0.0 < fraction <= 1.0:
             raise ValueError("fraction must be in (0, 1]")
-        if not divisor > 0.0 or not 0.0 <= min_chunk < 1.0 or not z >= 0.0:
-            raise ValueError("divisor must be positive, min_chunk in [0, 1) and z >= 0")
+        if not divisor > 0.0 or not 0.0 <= min_chunk < 1.0 or not min(z, min_seconds) >= 0.0:
+            raise ValueError("divisor must be positive, min_chunk in [0, 1), z, min_seconds >= 0")
         self.fraction = fraction
         self.divisor = divisor
         self.min_chunk = min_chunk
+        self.min_seconds = min_seconds
         self.z = z
+        self.call_seconds = call_seconds
+        self.calls_worth = calls_worth
         self._heads: dict[tuple[str, int, int], float] = {}  # predicted seconds of heads
         self._error2: float | None = None  # smoothed squared relative error of heads
 
-    def head_fraction(self) -> float:
-        """Share of each tracer's predicted cost sent as its head."""
+    def head_fraction(self, frame_seconds: float = math.inf) -> float:
+        """Share of each tracer's predicted cost sent as its head, for a frame predicted to
+        take ``frame_seconds``: everything when the heads' error is too small to pay for the
+        calls a tail costs."""
         if self.fraction is not None:
             return self.fraction
         if self._error2 is None:
             known = self._predictors[0].level is not None and self._work
             return 1.0 - (self.MAX_TAIL * 0.2 if known else self.FIRST_TAIL)
-        tail = self.z * math.sqrt(self._error2)
-        return 1.0 - min(max(tail, self.MIN_TAIL), self.MAX_TAIL)
+        spread = math.sqrt(self._error2)
+        if math.isfinite(frame_seconds) and spread * frame_seconds < (
+            self.calls_worth * self.call_seconds
+        ):
+            return 1.0
+        return 1.0 - min(max(self.z * spread, self.MIN_TAIL), self.MAX_TAIL)
 
     def plan(self, height: int, tracers: Sequence[str]) -> TailPlan:
         """Heads (one per tracer, in order) and the tail of the next frame."""
@@ -653,7 +674,8 @@ class CostAwareTail(CostAware):
         profile = self.predicted_profile(height)
         prefix = np.concatenate(([0.0], np.cumsum(profile)))
         speeds = self.speeds(tracers)
-        fraction = self.head_fraction()
+        timed = all(t in self._work for t in tracers)
+        fraction = self.head_fraction(prefix[-1] / speeds.sum() if timed else math.inf)
         known = self._predictors[0].level is not None
         heads: list[LineRange] = []
         tail: list[tuple[float, int, int]] = []
@@ -669,13 +691,15 @@ class CostAwareTail(CostAware):
             self._heads.pop(next(iter(self._heads)))
         segments = deque([y0, y1] for _, y0, y1 in sorted(tail))  # dearest first
         return TailPlan(
-            list(tracers),
-            heads,
-            prefix,
-            {t: float(v) for t, v in zip(tracers, speeds, strict=True)},
-            self.divisor,
-            self.min_chunk,
-            segments,
+            tracers=list(tracers),
+            heads=heads,
+            prefix=prefix,
+            speeds={t: float(v) for t, v in zip(tracers, speeds, strict=True)},
+            divisor=self.divisor,
+            min_chunk=self.min_chunk,
+            min_seconds=self.min_seconds,
+            timed=timed,
+            segments=segments,
         )
 
     def observe(self, height: int, reports: Sequence[TracerReport]) -> None:

@@ -12,7 +12,9 @@ work and adapts the rest within the frame:
 2. **Tail.** The tail's segments are handed out in chunks of whole, contiguous lines, dearest
    segments first, so the last chunks are the cheapest (guided self-scheduling): a tracer that
    asks gets ``remaining predicted cost x its share of the speed / divisor`` (``R / (k T)`` for
-   equal tracers), at least ``min_chunk`` of its predicted frame time and at least one line.
+   equal tracers), at least ``min_chunk`` of its predicted frame time, at least
+   ``min_seconds`` of predicted work (every call costs the tracer about a millisecond outside
+   rendering) and at least one line.
 3. **Queue ahead.** The coordinator sends every tracer its head and one chunk at once, and a
    new chunk whenever one of its calls returns, so a tracer always has a call queued (Ray runs
    an actor's calls in order) and never waits for the round trip.
@@ -44,6 +46,9 @@ class TailPlan:
     divisor: float = 2.0
     min_chunk: float = 0.0
     """Least chunk, as a fraction of the tracer's predicted frame time."""
+    min_seconds: float = 0.0
+    """Least chunk in predicted seconds (used when ``timed``: the speeds were measured)."""
+    timed: bool = False
     segments: deque[list[int]] = field(default_factory=deque)
     """Tail lines not handed out yet: ``[y0, y1)`` runs in the order they are handed out."""
 
@@ -75,7 +80,9 @@ class TailPlan:
         share = speed / total_speed
         frame_cost = float(self.prefix[-1])
         target = max(
-            self.remaining_cost() * share / self.divisor, self.min_chunk * frame_cost * share
+            self.remaining_cost() * share / self.divisor,
+            self.min_chunk * frame_cost * share,
+            self.min_seconds * speed if self.timed else 0.0,
         )
         segment = self.segments[0]
         a, b = segment

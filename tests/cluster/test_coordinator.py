@@ -19,9 +19,9 @@ import ray
 import trimesh
 
 from cluster.assembler import Assembler
-from cluster.balance import BALANCERS
+from cluster.balance import BALANCERS, idle_percent
 from cluster.connect import ClusterUnreachable, connect, disconnect, probe
-from cluster.coordinator import INLINE_COMMITS, Coordinator
+from cluster.coordinator import INLINE_COMMITS, Coordinator, gap_idle_percent
 from cluster.scene_graph import SceneGraph
 from tests.scene_states import translation
 from tests.worker.test_replica import CAMERA, studio
@@ -305,6 +305,60 @@ def test_a_straggler_is_duplicated_and_its_late_answer_discarded(fresh):
     following = coordinator.render_frame(1)
     assert coordinator.stats["stale_discarded"] >= 1
     assert np.array_equal(following.rgb, reference(graph.state, 1))
+
+
+def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh):
+    """cost-aware-tail with two tracers through a pipelined 16-frame animation: the frames use
+    chunks of the tail (more calls than tracers), a tracer killed mid-job loses no frame, every
+    frame equals render_image of its pose, and the restarted tracer takes work again."""
+    state = animated(16)
+    expected = animation_references(state, range(16))
+    graph = SceneGraph(state)
+    coordinator = fresh(
+        graph, tracers=2, balancer="cost-aware-tail", straggler_floor=30, delays=[0.03, 0.03]
+    )
+    frames = []
+    for frame in coordinator.render_animation():
+        frames.append(frame)
+        if frame.frame == 4:
+            ray.kill(coordinator.tracer_handle("t1"), no_restart=False)
+    assert [f.frame for f in frames] == list(range(16))
+    for frame in frames:
+        assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
+        assert_covers(frame, frame.rgb.shape[0])
+    assert coordinator.stats["failures"] == 1
+    assert any(f.calls > 2 and "tail" in {r.kind for r in f.ranges} for f in frames[:4])
+    assert all(0.0 <= f.idle_percent < 100.0 and 0.0 <= f.span_idle_percent < 100 for f in frames)
+    wait_ready(coordinator, "t1")
+    extra = coordinator.render_frame(15)
+    assert np.array_equal(extra.rgb, expected[15])
+    assert "t1" in {r.tracer for r in extra.ranges}
+
+
+def test_the_dynamic_tail_duplicates_a_straggler(fresh):
+    """With cost-aware-tail, a stalled tracer's head and queued chunk are copied to the idle
+    one once the tail is used up; the frame completes long before the stall ends."""
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=2, balancer="cost-aware-tail", straggler_floor=0.3)
+    ray.get(coordinator.tracer_handle("t1").set_delay.remote(2.5))
+    start = time.perf_counter()
+    frame = coordinator.render_frame(0)
+    assert time.perf_counter() - start < 2.0
+    assert np.array_equal(frame.rgb, reference(graph.state, 0))
+    assert frame.duplicates >= 1 and frame.failures == 0
+    assert {r.tracer for r in frame.ranges} == {"t0"}
+    assert {r.kind for r in frame.ranges} >= {"split", "tail", "duplicate"}
+
+
+def test_gap_idle_percent_counts_waits_between_ranges():
+    """One range per tracer: Table 16's measure of the busy seconds. Several: a tracer's gaps
+    between results (arrival minus previous arrival minus busy) count as idle."""
+    single = {"a": [(1.0, 0.8)], "b": [(1.2, 0.6)]}
+    assert gap_idle_percent(single) == pytest.approx(idle_percent([0.8, 0.6]))
+    # b: 0.5 s, then a result 0.5 s later that took 0.3 s: a 0.2 s wait -> window 1.0 s
+    several = {"a": [(1.0, 1.0)], "b": [(0.5, 0.5), (1.0, 0.3)]}
+    assert gap_idle_percent(several) == pytest.approx(100 * (0 + (1.0 - 0.8)) / (2 * 1.0))
+    assert gap_idle_percent({}) == 0.0
 
 
 def test_tracers_join_and_leave_between_frames(fresh):

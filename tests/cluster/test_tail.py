@@ -112,7 +112,9 @@ def one_segment_plan(lines: int, speeds: dict[str, float], min_chunk: float = 0.
     """A plan whose whole frame of ``lines`` equal lines (cost 10 each) is the tail."""
     prefix = np.arange(lines + 1) * 10.0
     heads = [(0, 0)] * len(speeds)
-    return TailPlan(list(speeds), heads, prefix, speeds, 2.0, min_chunk, deque([[0, lines]]))
+    return TailPlan(
+        list(speeds), heads, prefix, speeds, 2.0, min_chunk, segments=deque([[0, lines]])
+    )
 
 
 def test_chunks_shrink_and_a_faster_tracer_gets_more():
@@ -156,6 +158,25 @@ def test_the_tail_share_follows_the_prediction_error():
     # rms of the relative head error is about 0.1 to 0.14 (the speed of one frame against a
     # smoothed mean); the smoothed estimate over ~10 frames stays within a factor 2 of that.
     assert CostAwareTail.Z * 0.05 < tail < CostAwareTail.Z * 0.3
+
+
+def test_no_tail_when_heads_miss_by_less_than_a_few_calls():
+    """Two tracers of 50 ms per frame whose heads are predicted within 1% (0.5 ms): the tail
+    would cost more calls than it saves, so the plan is the plain cost-aware split; at 10% the
+    tail comes back."""
+    cost = sky_and_ground(300)
+    scale = float(cost.sum()) / 0.1  # speed (cost per second) of a 0.1 s frame per tracer
+    balancer = CostAwareTail()
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        speeds = scale * np.array([1.0, 1.0]) * np.exp(0.005 * rng.normal(size=2))
+        dynamic_frame(balancer, cost, ["a", "b"], speeds)
+    plan = balancer.plan(300, ["a", "b"])
+    assert plan.empty and plan.heads == balancer.split(300, ["a", "b"])
+    for _ in range(30):
+        speeds = scale * np.array([1.0, 1.0]) * np.exp(0.1 * rng.normal(size=2))
+        dynamic_frame(balancer, cost, ["a", "b"], speeds)
+    assert not balancer.plan(300, ["a", "b"]).empty
 
 
 def test_several_reports_per_tracer_give_the_speed_of_their_sums():
