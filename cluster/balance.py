@@ -620,10 +620,14 @@ class CostAwareTail(CostAware):
     should be worth several calls."""
     CALL_SECONDS = 0.001
     """A render call's cost to a tracer outside rendering (0.86 ms queued, bench/cluster.py)."""
-    CALLS_WORTH = 4.0
+    CALLS_WORTH = 8.0
     """No tail unless the heads' typical error (rms, in seconds) exceeds this many calls: a
     static split idles about half that error, a tail costs at least one more call per tracer
     and its last chunks' mismatch (simulator: ``bench/balance_sim.py --calls``)."""
+    MIN_LINES = 16
+    """No tail with fewer lines per tracer: a chunk is at least a line, and where one dear line
+    is a large part of a tracer's frame, a chunk queued on a slow tracer at the end costs
+    more than the tail saves (simulator: 8-128 tracers on 96 lines, 128 on 480)."""
     HEADS_KEPT = 64
 
     def __init__(
@@ -676,6 +680,8 @@ class CostAwareTail(CostAware):
         speeds = self.speeds(tracers)
         timed = all(t in self._work for t in tracers)
         fraction = self.head_fraction(prefix[-1] / speeds.sum() if timed else math.inf)
+        if height < self.MIN_LINES * len(tracers):
+            fraction = 1.0
         known = self._predictors[0].level is not None
         heads: list[LineRange] = []
         tail: list[tuple[float, int, int]] = []
