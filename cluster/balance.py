@@ -608,19 +608,22 @@ class CostAwareTail(CostAware):
     name = "cost-aware-tail"
     Z = 1.5
     MIN_TAIL = 0.02
-    MAX_TAIL = 0.5
+    MAX_TAIL = 0.15
     FIRST_TAIL = 0.5
     DIVISOR = 2.0
     """Guided self-scheduling's k: a chunk is the remaining tail x speed share / k."""
     MIN_CHUNK = 0.02
     """Least chunk, as a fraction of a tracer's predicted frame time."""
-    MIN_SECONDS = 0.005
+    MIN_SECONDS = 0.01
     """Least chunk in predicted seconds: every call costs a tracer about a millisecond outside
     rendering on the development machine (bench/cluster.py, docs/balancing.md), so a chunk
     should be worth several calls."""
-    CALL_SECONDS = 0.001
-    """A render call's cost to a tracer outside rendering (0.86 ms queued, bench/cluster.py)."""
-    CALLS_WORTH = 8.0
+    CALL_SECONDS = 0.002
+    """What one more render call costs a tracer: about 0.8 ms between queued calls and 0.4 ms
+    of fixed work inside the call (bench/cluster.py), and on a machine where the coordinator
+    shares the tracers' cores, its own work for the call (about 1.5 ms of busy time per extra
+    call measured with two tracers on the two-core development machine)."""
+    CALLS_WORTH = 4.0
     """No tail unless the heads' typical error (rms, in seconds) exceeds this many calls: a
     static split idles about half that error, a tail costs at least one more call per tracer
     and its last chunks' mismatch (simulator: ``bench/balance_sim.py --calls``)."""
