@@ -82,9 +82,15 @@ def psnr(x: np.ndarray, ref: np.ndarray) -> float:
 PARTS = 4
 """Independent parts a render is split into for :func:`estimate_rel_mse` (equal sample counts
 over disjoint sample ranges): enough for a median that one outlier does not move."""
+CORROBORATION = 0.5
+"""An outlier pixel whose mean a neighbour's mean reaches to this fraction is read as a light
+seen directly (see :func:`estimate_rel_mse`)."""
+UNRESOLVED_PIXELS = 2
+"""How many isolated outlier pixels may be small lights rather than fireflies before the
+estimate says None (see :func:`estimate_rel_mse`)."""
 AMBIGUITY = 1.5
-"""Largest ratio of relative errors between the two readings of outliers (see
-:func:`estimate_rel_mse`) at which the estimate is still given."""
+"""Largest ratio of relative errors between the two readings of those pixels at which the
+estimate is still given."""
 
 
 def estimate_rel_mse(parts: Images, eps: float = REL_EPSILON) -> float | None:
@@ -102,22 +108,30 @@ def estimate_rel_mse(parts: Images, eps: float = REL_EPSILON) -> float | None:
       at the rim of a small bright light, whose parts mostly missed it, beside pixels whose
       parts all saw it).
 
-    An outlier that only one part has is read two ways: a rare firefly on top of the pixel's
-    value (the median is right), or the pixel's value itself, found by few samples (a light
-    smaller than a pixel seen directly: ``m`` is right). Which one is true needs more samples;
-    when the two readings of the whole image differ by more than ``AMBIGUITY`` in relative
-    error, the estimate is None ("not estimable yet"). docs/accuracy.md measures this.
+    An *outlier pixel* (``m`` above twice that denominator) can be read two ways: a rare
+    firefly on top of the pixel's value (the median is right), or the pixel's value itself,
+    found by few samples (a light smaller than a pixel, seen directly: ``m`` is right).
+    Fireflies land at random, lights are where they are: an outlier pixel with a neighbour
+    whose mean is at least ``CORROBORATION`` of its own is read as a light (``m``), others as
+    fireflies. A small light may still show in one pixel alone; when reading the
+    ``UNRESOLVED_PIXELS`` outlier pixels that count most as lights instead would change the
+    relative error by more than ``AMBIGUITY``, the parts cannot tell it yet and the estimate
+    is None. docs/accuracy.md measures this.
     """
     stack = _parts(parts)
     mean = stack.mean(axis=0)
     variance = stack.var(axis=0, ddof=1) / stack.shape[0]
     centre = np.median(stack, axis=0)
-    mu = np.maximum(centre, np.minimum(mean, 0.5 * max_filter3(centre)))
-    rare = float(np.mean(variance / (mu * mu + eps)))
-    carried = float(np.mean(variance / (np.maximum(mu, mean) ** 2 + eps)))
-    if rare > AMBIGUITY**2 * carried:
+    floor = np.maximum(centre, np.minimum(mean, 0.5 * max_filter3(centre)))
+    outlier = mean > 2.0 * floor
+    light = outlier & (max_neighbour(mean) >= CORROBORATION * mean)
+    terms = variance / (np.where(light, mean, floor) ** 2 + eps)
+    as_lights = variance / (np.maximum(floor, mean) ** 2 + eps)
+    excess = np.sort((terms - as_lights).sum(axis=2), axis=None)[-UNRESOLVED_PIXELS:].sum()
+    total = float(terms.sum())
+    if total - excess < total / AMBIGUITY**2:
         return None
-    return rare
+    return total / terms.size
 
 
 def estimate_rel_error(parts: Images, eps: float = REL_EPSILON) -> float | None:
@@ -134,6 +148,16 @@ def _parts(parts: Images) -> np.ndarray:
             f"expected at least 3 (H, W, 3) images of one shape, got shape {stack.shape}"
         )
     return stack
+
+
+def max_neighbour(image: np.ndarray) -> np.ndarray:
+    """The largest value of each pixel's 8 neighbours, per channel (-inf beyond the edges)."""
+    padded = np.pad(image, ((1, 1), (1, 1), (0, 0)), constant_values=-np.inf)
+    h, w = image.shape[:2]
+    out = np.full(image.shape, -np.inf)
+    for dy, dx in ((0, 0), (0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1), (2, 2)):
+        np.maximum(out, padded[dy : dy + h, dx : dx + w], out=out)
+    return out
 
 
 def max_filter3(image: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from tracer.error_estimate import (
+    AMBIGUITY,
     PARTS,
     REL_EPSILON,
     estimate_rel_error,
@@ -149,11 +150,53 @@ def test_estimate_follows_a_firefly():
     assert estimate_rel_mse(images) == pytest.approx(true, abs=4 * se + 0.25 * firefly)
 
 
+def test_scattered_fireflies_are_estimated():
+    """Fireflies in one part each, at pixels far apart, carrying nearly all the error: read
+    with the mean as denominator they would count ~100% each (below 1/2.25 of the true error,
+    where the former whole-image test said None); as fireflies over the median they are the
+    error of the mean. Per firefly pixel the estimate is ``F^2 / 16`` over the median of the
+    three other parts, which lies at most about one part's sd (2%) above ``mu``: the
+    denominator is at most ~4% high, so the estimate is within 6% of the true error."""
+    rng = np.random.default_rng(8)
+    mu = np.full(SHAPE, 0.5)
+    images = parts(rng, mu, 0.02 * mu)
+    ys, xs = np.meshgrid(np.arange(2, 48, 5), np.arange(2, 64, 5), indexing="ij")
+    for y, x in zip(ys.ravel(), xs.ravel(), strict=True):
+        images[rng.integers(PARTS), y, x] += rng.uniform(10.0, 40.0)
+    mean = images.mean(axis=0)
+    true = rel_mse(mean, mu)
+    as_values = np.mean(images.var(axis=0, ddof=1) / PARTS / (mean * mean + REL_EPSILON))
+    assert as_values < true / AMBIGUITY**2
+    assert estimate_rel_mse(images) == pytest.approx(true, rel=0.06)
+
+
+def test_a_small_light_seen_in_one_part_per_pixel():
+    """A light seen directly over a block of pixels, each of which only one part happened to
+    sample it: the pixels' means corroborate each other, so they are read as the light's
+    value (denominator the mean, exactly), not as fireflies (which would count them ~100 times
+    more); one such pixel alone is not estimable (below)."""
+    rng = np.random.default_rng(9)
+    mu = np.full(SHAPE, 0.5)
+    images = parts(rng, mu, 0.02 * mu)
+    block = (slice(20, 23), slice(30, 34))
+    images[(rng.integers(PARTS, size=(3, 4)), *np.ogrid[20:23, 30:34])] += 20.0
+    variance = images.var(axis=0, ddof=1) / PARTS
+    mean = images.mean(axis=0)
+    centre = np.median(images, axis=0)
+    denominator = np.maximum(centre, np.minimum(mean, 0.5 * max_filter3(centre)))
+    denominator[block] = mean[block]
+    expected = np.mean(variance / (denominator**2 + REL_EPSILON))
+    assert estimate_rel_mse(images) == pytest.approx(expected, rel=1e-12)
+    as_fireflies = variance[block] / (centre[block] ** 2 + REL_EPSILON)
+    assert as_fireflies.sum() > 50 * (variance[block] / (mean[block] ** 2 + REL_EPSILON)).sum()
+
+
 def test_an_outlier_that_carries_the_error_is_not_estimable():
     """A pixel that one part alone saw lit (a light smaller than a pixel, or a firefly on a
-    black pixel) and that makes most of the image's error: the parts cannot tell whether it is
-    a rare outlier or the pixel's value, so the estimate is None; once the other parts see it
-    too, it is an estimate again."""
+    black pixel), with no lit neighbour, that makes most of the image's error: the parts
+    cannot tell whether it is a rare outlier or the pixel's value, so the estimate is None;
+    the same with two such pixels far apart; once the other parts see it too, it is an
+    estimate again."""
     rng = np.random.default_rng(7)
     mu = np.full(SHAPE, 0.5)
     images = parts(rng, mu, 0.05 * mu)
@@ -161,6 +204,10 @@ def test_an_outlier_that_carries_the_error_is_not_estimable():
     images[2, 20, 30] = 40.0
     assert estimate_rel_mse(images) is None
     assert estimate_rel_error(images) is None
+    two = images.copy()
+    two[:, 20, 30] = 0.5
+    two[1, 5, 5] = two[3, 40, 60] = 30.0
+    assert estimate_rel_mse(two) is None
     images[:, 20, 30] = np.array([38.0, 41.0, 40.0, 0.0])[:, None]
     assert estimate_rel_mse(images) is not None
 
