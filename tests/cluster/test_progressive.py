@@ -109,12 +109,14 @@ def test_a_frame_takes_at_least_one_wave():
 
 def test_a_target_waits_for_an_estimate():
     """While the estimate says "not estimable yet" (None), a frame with a target error keeps
-    sampling, and the waves keep doubling: a renderer whose parts each saw one bright outlier
-    in a different pixel, on an otherwise noiseless image."""
+    sampling, and the waves keep doubling: a renderer whose parts 0 and 2 each saw one
+    bright outlier, in two pixels far apart, on an otherwise noiseless image (two pixels
+    alone decide whether they are fireflies or lights smaller than a pixel)."""
     progress = ProgressiveFrame(W, H, Goal(target_error=0.5, max_spp=64))
     while (part := progress.next_part()) is not None:
         image = np.full((H, W, 3), MU)
-        image[part.index, part.index] = 1000.0 / part.spp  # one sample of 1000 per part
+        if part.index in (0, 2):  # one sample of 1000 in the part
+            image[4 * part.index, 6 * part.index] = 1000.0 / part.spp
         progress.add_part(image, 0.1)
     assert [w.error for w in progress.waves] == [None] * len(progress.waves)
     assert [w.spp for w in progress.waves] == [4, 8, 16, 32, 64]
