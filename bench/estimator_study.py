@@ -7,8 +7,8 @@ study's calibration uses seed 1), as ``--batches`` independent batches of ``--ba
 samples over disjoint sample ranges. Each batch keeps its running mean at 1, 2, 4, ...
 ``--batch-spp`` samples, so a level of N spp split into K parts takes K batches' means at N/K
 samples each (or the means of several whole batches past ``--batch-spp``), and the batches give
-``batches * batch_spp / N`` independent repeats of the level (at most ``batches / K``). Cached
-in ``bench/results/estimator-dev/``.
+``batches * batch_spp / N`` independent repeats of the level (at most ``batches / K``: with the
+defaults 8 up to 256 spp, 4 at 512 and 2 at 1024). Cached in ``bench/results/estimator-dev/``.
 
 ``evaluate``: at every level from 4 to 1024 spp and every repeat, each estimator of
 :data:`ESTIMATORS` against the true relative error of the parts' mean (the reference's noise
@@ -20,9 +20,12 @@ true relative MSE over the repeats).
 ``validate``: the study's own calibration (``cli.accuracy.calibration``: the study's seed,
 references and sizes) of the current estimator, every scene.
 
-    python bench/estimator_study.py render            # ~4 minutes of two cores, cached
-    python bench/estimator_study.py evaluate          # seconds, from the cache
-    python bench/estimator_study.py validate          # the study's calibration, ~2 minutes
+Our own references come from the study's cache (``bench/results/accuracy-cache/``, rendered by
+``tilerender bench accuracy`` when missing; see :func:`study_setup`).
+
+    python bench/estimator_study.py render      # 13 CPU minutes (20 min on a busy 2-core box)
+    python bench/estimator_study.py evaluate    # a minute, from the cache; -v: every level
+    python bench/estimator_study.py validate    # the study's calibration, ~4 minutes
 """
 
 import argparse
@@ -251,7 +254,9 @@ def max_of_neighbours(image: np.ndarray) -> np.ndarray:
     return out
 
 
-def corroborated(fraction: float, top: int | None, limit: float = 1.5) -> Estimator:
+def corroborated(
+    fraction: float, top: int | None, limit: float = 1.5, outlier: float = 2.0
+) -> Estimator:
     """Median reading, but an outlier pixel (mean above twice the median reading's centre)
     whose mean a neighbour's mean corroborates (at least ``fraction`` of it: a light's
     neighbouring pixels) takes the mean reading; None when reading the ``top`` pixels of
@@ -260,7 +265,7 @@ def corroborated(fraction: float, top: int | None, limit: float = 1.5) -> Estima
 
     def estimate(stack: np.ndarray, eps: float = ee.REL_EPSILON) -> float | None:
         mean, variance, mu = _readings(stack, eps)
-        lit = (mean > 2.0 * mu) & (max_of_neighbours(mean) >= fraction * mean)
+        lit = (mean > outlier * mu) & (max_of_neighbours(mean) >= fraction * mean)
         d = np.where(lit, np.maximum(mu, mean), mu)
         med = variance / (d * d + eps)
         alt = variance / (np.maximum(mu, mean) ** 2 + eps)
@@ -279,11 +284,13 @@ ESTIMATORS: dict[str, Estimator] = {
     "mean reading, never None": mean_reading,
     "whole-image ambiguity 1.5 (before)": ambiguity_rule(1.5),
     "median reading, None by the 2x2 window": window_rule(2),
-    "corroborated lights, never None": corroborated(0.5, None),
-    "corroborated lights, None by top 1 pixel": corroborated(0.5, 1),
-    "corroborated lights, None by top 2 pixels": corroborated(0.5, 2),
-    "corroborated lights, None by top 3 pixels": corroborated(0.5, 3),
-    "corroborated at 0.25, None by top 2 pixels": corroborated(0.25, 2),
+    "outliers above 2x corroborated, never None": corroborated(0.5, None),
+    "outliers above 2x corroborated, None by top 1": corroborated(0.5, 1),
+    "outliers above 2x corroborated, None by top 2": corroborated(0.5, 2),
+    "outliers above 2x corroborated, None by top 3": corroborated(0.5, 3),
+    "the same, corroborated at 0.25, top 2": corroborated(0.25, 2),
+    "outliers above 3x corroborated, None by top 2": corroborated(0.5, 2, outlier=3.0),
+    "outliers above 4x corroborated, None by top 2": corroborated(0.5, 2, outlier=4.0),
     "tracer.error_estimate (current code)": ee.estimate_rel_mse,
 }
 

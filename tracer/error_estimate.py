@@ -82,6 +82,9 @@ def psnr(x: np.ndarray, ref: np.ndarray) -> float:
 PARTS = 4
 """Independent parts a render is split into for :func:`estimate_rel_mse` (equal sample counts
 over disjoint sample ranges): enough for a median that one outlier does not move."""
+OUTLIER = 3.0
+"""A pixel whose mean is above this factor times its denominator (a part above about 8 times
+the others) has an outlier that few parts saw (see :func:`estimate_rel_mse`)."""
 CORROBORATION = 0.5
 """An outlier pixel whose mean a neighbour's mean reaches to this fraction is read as a light
 seen directly (see :func:`estimate_rel_mse`)."""
@@ -108,22 +111,24 @@ def estimate_rel_mse(parts: Images, eps: float = REL_EPSILON) -> float | None:
       at the rim of a small bright light, whose parts mostly missed it, beside pixels whose
       parts all saw it).
 
-    An *outlier pixel* (``m`` above twice that denominator) can be read two ways: a rare
-    firefly on top of the pixel's value (the median is right), or the pixel's value itself,
-    found by few samples (a light smaller than a pixel, seen directly: ``m`` is right).
-    Fireflies land at random, lights are where they are: an outlier pixel with a neighbour
-    whose mean is at least ``CORROBORATION`` of its own is read as a light (``m``), others as
-    fireflies. A small light may still show in one pixel alone; when reading the
-    ``UNRESOLVED_PIXELS`` outlier pixels that count most as lights instead would change the
-    relative error by more than ``AMBIGUITY``, the parts cannot tell it yet and the estimate
-    is None. docs/accuracy.md measures this.
+    An *outlier pixel* (``m`` above ``OUTLIER`` times that denominator) can be read two
+    ways: a rare firefly on top of the pixel's value (the median is right), or the pixel's
+    value itself, found by few samples (a light smaller than a pixel, seen directly, or a
+    glint of the sun: ``m`` is right). Fireflies land at random, lights are where they are:
+    an outlier pixel with a neighbour whose mean is at least ``CORROBORATION`` of its own is
+    read as a light (``m``), the others as fireflies. A small light may still show in one
+    pixel alone; when reading the ``UNRESOLVED_PIXELS`` pixels whose reading matters most
+    the other way would change the relative error by more than ``AMBIGUITY``, the parts
+    cannot tell it yet and the estimate is None. It estimates the error of this render
+    (which fireflies it caught), not the mean error of renders like it; docs/accuracy.md
+    measures both.
     """
     stack = _parts(parts)
     mean = stack.mean(axis=0)
     variance = stack.var(axis=0, ddof=1) / stack.shape[0]
     centre = np.median(stack, axis=0)
     floor = np.maximum(centre, np.minimum(mean, 0.5 * max_filter3(centre)))
-    outlier = mean > 2.0 * floor
+    outlier = mean > OUTLIER * floor
     light = outlier & (max_neighbour(mean) >= CORROBORATION * mean)
     terms = variance / (np.where(light, mean, floor) ** 2 + eps)
     as_lights = variance / (np.maximum(floor, mean) ** 2 + eps)
