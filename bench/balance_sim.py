@@ -550,9 +550,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--balancers",
         nargs="+",
-        default=[*BALANCERS, ORACLE],
+        default=None,
         choices=[*BALANCERS, ORACLE],
-        help="balancers to run (default: all)",
+        help="balancers to run (default: all but cost-aware-tail and the oracle's; with "
+        "--calls: cost-aware and cost-aware-tail). cost-aware-tail hands lines out within the "
+        "frame, which only the --calls model replays: without --calls it is cost-aware",
     )
     parser.add_argument("--frames", type=int, default=128, help="frames to replay (default 128)")
     parser.add_argument(
@@ -655,6 +657,8 @@ def main(argv: list[str] | None = None) -> int:
     options = dict(vars(args))
     if args.calls:
         return main_calls(args, options, machine)
+    if args.balancers is None:
+        args.balancers = [*(b for b in BALANCERS if b != "cost-aware-tail"), ORACLE]
     if args.sweep:
         factories = sweep_variants()
     else:
@@ -700,9 +704,7 @@ def main_calls(args, options: dict, machine: dict) -> int:
     if args.tail_sweep:
         factories = tail_variants()
     else:
-        names = [n for n in args.balancers if n != ORACLE]
-        if names == [n for n in BALANCERS]:  # the default: the static split and the tail
-            names = ["cost-aware", "cost-aware-tail"]
+        names = [n for n in args.balancers or ["cost-aware", "cost-aware-tail"] if n != ORACLE]
         factories = {name: (lambda n=name: make_balancer(n)) for name in names}
     start = time.perf_counter()
     all_results = {}

@@ -212,13 +212,15 @@ def idle_real(frames: int, balancers: list[str], width: int, height: int, oracle
 def call_costs(width: int, height: int, repeats: int) -> dict:
     """What a render call costs a real tracer outside rendering (the simulator's
     ``--latency-ms`` and ``--call-gap-ms``), on the orbit scene at ``width`` x ``height``:
-    the round trip of a one-line call minus its render seconds, and the time between calls
+    the round trip of a one-line call minus its render seconds; the time between calls
     queued back to back (30 four-line calls behind a long one, so none waits for its
-    submission): their wall time minus busy time and one round trip, per call."""
+    submission): their wall time minus busy time and one round trip, per call; and the fixed
+    work inside a call (its busy seconds beyond its lines'): 40 lines as ten calls against the
+    same lines as one, per extra call."""
     state, _ = load_orbit_scene()
     settings = state.render.model_copy(update={"spp": 1})
     camera = orbit_camera(0.0, width, height)
-    trips, gaps = [], []
+    trips, gaps, fixed = [], [], []
     with Coordinator(SceneGraph(state), tracers=1, cpus_per_tracer=1.0) as c:
         version = c.render_frame(camera=camera, settings=settings).version
         handle = c.tracer_handle(c.ready[0])
@@ -242,10 +244,16 @@ def call_costs(width: int, height: int, repeats: int) -> dict:
             wall = time.perf_counter() - start
             busy = sum(o.seconds + o.apply_seconds for o in outs)
             gaps.append((wall - busy - trip) / 30)
+            a = height // 2 + height // 8
+            whole = ray.get(call(a, a + 40))
+            parts = ray.get([call(a + 4 * k, a + 4 * k + 4) for k in range(10)])
+            extra = sum(p.seconds + p.apply_seconds for p in parts) - whole.seconds
+            fixed.append((extra - whole.apply_seconds) / 9)
     return {
         "round_trip_minus_render_ms": 1e3 * statistics.median(trips),
         "queued_gap_ms": 1e3 * statistics.median(gaps),
         "queued_gap_ms_all": [round(1e3 * g, 3) for g in gaps],
+        "fixed_in_call_ms": 1e3 * statistics.median(fixed),
         "size": [width, height],
     }
 
@@ -377,10 +385,12 @@ def main(argv: list[str] | None = None) -> int:
             print_table(
                 f"A render call's cost outside rendering (orbit scene, {width}x{height}; the "
                 "simulator's --latency-ms is half the round trip, --call-gap-ms the queued gap)",
-                ["round trip - render ms", "queued gap ms per call", "queued gap, each round"],
+                ["round trip - render ms", "queued gap ms per call", "queued gap, each round",
+                 "fixed work in a call ms"],
                 [[fmt_float(calls["round_trip_minus_render_ms"], 3),
                   fmt_float(calls["queued_gap_ms"], 3),
-                  ", ".join(f"{g:.2f}" for g in calls["queued_gap_ms_all"])]],
+                  ", ".join(f"{g:.2f}" for g in calls["queued_gap_ms_all"]),
+                  fmt_float(calls["fixed_in_call_ms"], 3)]],
             )  # fmt: skip
         if "recovery" not in args.skip:
             rec = recovery(args.overhead_size, args.spp * 4)
