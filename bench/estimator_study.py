@@ -414,9 +414,74 @@ def cmd_evaluate(args) -> dict:
         results[setup.name] = evaluate_scene(setup, means, args.max_spp)
     rows = summarise(results)
     print_summary(rows)
+    stops = target_stops(results)
+    print_stops(stops)
     if args.verbose:
         print_levels(results)
-    return {"summary": rows, "levels": results}
+    return {"summary": rows, "target_stops": stops, "levels": results}
+
+
+TARGETS = (0.3, 0.1, 0.05)
+"""Relative errors of the simulated renders to a target (``target_stops``)."""
+TARGET_ESTIMATORS = ("whole-image ambiguity 1.5 (before)", "tracer.error_estimate (current code)")
+
+
+def target_stops(results: dict[str, list[dict]]) -> list[dict]:
+    """Renders to a target error, simulated on the levels: for every scene, every repeat that
+    reaches the last level (two with the defaults) and every target of ``TARGETS``, the first
+    level whose estimate is at most the target (where a progressive render would stop), and the
+    true error there; None when no level up to the last one stops it (``--max-spp``)."""
+    out = []
+    for name in TARGET_ESTIMATORS:
+        for scene, records in results.items():
+            for rep in range(len(records[-1]["true"])):
+                for target in TARGETS:
+                    stop = next(
+                        (
+                            rec
+                            for rec in records
+                            if rec["estimates"][name][rep] is not None
+                            and math.sqrt(rec["estimates"][name][rep]) <= target
+                        ),
+                        None,
+                    )
+                    out.append(
+                        {
+                            "estimator": name,
+                            "scene": scene,
+                            "repeat": rep,
+                            "target": target,
+                            "spp": None if stop is None else stop["spp"],
+                            "true": None
+                            if stop is None
+                            else math.sqrt(max(stop["true"][rep], 0.0)),
+                        }
+                    )
+    return out
+
+
+def print_stops(stops: list[dict]) -> None:
+    rows = []
+    for name in TARGET_ESTIMATORS:
+        mine = [s for s in stops if s["estimator"] == name]
+        stopped = [s for s in mine if s["spp"] is not None]
+        rows.append(
+            [
+                name,
+                f"{len(stopped)} of {len(mine)}",
+                f"{sum(s['true'] <= (1 + BAND) * s['target'] for s in stopped)} of {len(stopped)}",
+                ", ".join(
+                    sorted({f"{s['scene']}@{s['target']:g}" for s in mine if s["spp"] is None})
+                )
+                or "-",
+            ]
+        )
+    print_table(
+        f"renders to a target error {', '.join(f'{t:g}' for t in TARGETS)}, simulated on the "
+        "levels",
+        ["estimator", "stopped by the target", "true error within +30% of it", "ran to the end"],
+        rows,
+    )
 
 
 def print_levels(results: dict[str, list[dict]]) -> None:
