@@ -83,14 +83,14 @@ PARTS = 4
 """Independent parts a render is split into for :func:`estimate_rel_mse` (equal sample counts
 over disjoint sample ranges): enough for a median that one outlier does not move."""
 OUTLIER = 3.0
-"""A pixel whose mean is above this factor times its denominator (a part above about 8 times
-the others) has an outlier that few parts saw (see :func:`estimate_rel_mse`)."""
+"""A pixel whose mean is above this factor times its denominator (one part above 9 times the
+other three) has an outlier that few parts saw (see :func:`estimate_rel_mse`)."""
 CORROBORATION = 0.5
 """An outlier pixel whose mean a neighbour's mean reaches to this fraction is read as a light
 seen directly (see :func:`estimate_rel_mse`)."""
 UNRESOLVED_PIXELS = 2
-"""How many isolated outlier pixels may be small lights rather than fireflies before the
-estimate says None (see :func:`estimate_rel_mse`)."""
+"""The pixels whose reading matters most that must not decide the estimate alone: a light
+smaller than a pixel, seen by one part, shows in one or two (see :func:`estimate_rel_mse`)."""
 AMBIGUITY = 1.5
 """Largest ratio of relative errors between the two readings of those pixels at which the
 estimate is still given."""
