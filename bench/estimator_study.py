@@ -25,11 +25,11 @@ Our own references come from the study's cache (``bench/results/accuracy-cache/`
 
     python bench/estimator_study.py render      # 2,048 spp per scene, cached
     python bench/estimator_study.py evaluate    # a minute, from the cache; -v: every level
-    python bench/estimator_study.py validate    # 1,024 spp per scene: 1.5 CPU minutes
+    python bench/estimator_study.py validate    # 1,024 spp per scene
 
-Measured on a shared 2-core machine: ``render`` took 13 CPU minutes (20 minutes of wall-clock
-time), most of it for six of the study's references that were not in its cache (16,384 spp
-each); ``validate`` took 1.5 CPU minutes, ``render`` alone renders twice its samples.
+Measured on a shared 2-core machine: ``render`` took 3.1 CPU minutes (4.2 minutes of
+wall-clock time; the first run took 13, most of them for six of the study's references that
+were missing from its cache, 16,384 spp each), ``validate`` 1.5 CPU minutes.
 """
 
 import argparse
