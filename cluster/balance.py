@@ -597,8 +597,10 @@ class CostAwareTail(CostAware):
     The tail's share follows how well heads were predicted: ``Z`` times the root mean square
     of the heads' relative time errors (``seconds / predicted - 1``, smoothed over frames with
     weight ``ERROR_ALPHA``), between ``MIN_TAIL`` and ``MAX_TAIL``; ``FIRST_TAIL`` while
-    nothing is known (the first frame is an even split of unknown costs). ``fraction`` fixes
-    the heads' share instead.
+    nothing is known (the first frame is an even split of unknown costs). No tail when that
+    error, in seconds, is worth fewer than ``CALLS_WORTH`` calls, nor with fewer than
+    ``MIN_LINES`` lines per tracer. ``fraction`` fixes the heads' share instead (the lines rule
+    still applies; ``min_lines=1`` lifts it).
 
     ``observe`` takes any number of reports per tracer (heads and chunks): the profile from
     all of them, each tracer's speed from the sums of its cost and seconds over the frame (one
@@ -642,6 +644,7 @@ class CostAwareTail(CostAware):
         z: float = Z,
         call_seconds: float = CALL_SECONDS,
         calls_worth: float = CALLS_WORTH,
+        min_lines: int = MIN_LINES,
         **cost_aware,
     ) -> None:
         super().__init__(**cost_aware)
@@ -656,6 +659,7 @@ class CostAwareTail(CostAware):
         self.z = z
         self.call_seconds = call_seconds
         self.calls_worth = calls_worth
+        self.min_lines = min_lines
         self._heads: dict[tuple[str, int, int], float] = {}  # predicted seconds of heads
         self._error2: float | None = None  # smoothed squared relative error of heads
 
@@ -667,7 +671,7 @@ class CostAwareTail(CostAware):
             return self.fraction
         if self._error2 is None:
             known = self._predictors[0].level is not None and self._work
-            return 1.0 - (self.MAX_TAIL * 0.2 if known else self.FIRST_TAIL)
+            return 1.0 - (self.MIN_TAIL if known else self.FIRST_TAIL)
         spread = math.sqrt(self._error2)
         if math.isfinite(frame_seconds) and spread * frame_seconds < (
             self.calls_worth * self.call_seconds
@@ -683,7 +687,7 @@ class CostAwareTail(CostAware):
         speeds = self.speeds(tracers)
         timed = all(t in self._work for t in tracers)
         fraction = self.head_fraction(prefix[-1] / speeds.sum() if timed else math.inf)
-        if height < self.MIN_LINES * len(tracers):
+        if height < self.min_lines * len(tracers):
             fraction = 1.0
         known = self._predictors[0].level is not None
         heads: list[LineRange] = []

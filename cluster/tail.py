@@ -19,9 +19,10 @@ work and adapts the rest within the frame:
    new chunk whenever one of its calls returns, so a tracer always has a call queued (Ray runs
    an actor's calls in order) and never waits for the round trip.
 
-The balancer is ``cluster.balance.CostAwareTail``; this module holds the plan it makes for one
-frame (``TailPlan``) and how a range is cut into head and rest (``cut_head``). Pixels never
-depend on how lines were handed out. Formulas and measurements: ``docs/balancing.md``.
+How big the tail is (and whether there is one) is the balancer's business,
+``cluster.balance.CostAwareTail``; this module holds the plan it makes for one frame
+(``TailPlan``) and how a range is cut into head and rest (``cut_head``). Pixels never depend
+on how lines were handed out. Formulas and measurements: ``docs/balancing.md``.
 """
 
 from collections import deque
@@ -56,19 +57,13 @@ class TailPlan:
     def empty(self) -> bool:
         return not self.segments
 
-    @property
-    def tail_lines(self) -> int:
-        return sum(b - a for a, b in self.segments)
-
     def remaining_cost(self) -> float:
         """Predicted cost of the lines not handed out yet."""
         return float(sum(self.prefix[b] - self.prefix[a] for a, b in self.segments))
 
-    def drain(self) -> list[LineRange]:
-        """Every line not handed out yet (the plan is empty afterwards)."""
-        out = [(a, b) for a, b in self.segments]
+    def drain(self) -> None:
+        """Give up the lines not handed out yet (someone else renders them)."""
         self.segments.clear()
-        return out
 
     def next_chunk(self, tracer: str) -> LineRange | None:
         """The next chunk for ``tracer`` (any id: an unknown one counts at the mean speed), or

@@ -19,7 +19,7 @@ import ray
 import trimesh
 
 from cluster.assembler import Assembler
-from cluster.balance import BALANCERS, idle_percent
+from cluster.balance import BALANCERS, CostAwareTail, idle_percent
 from cluster.connect import ClusterUnreachable, connect, disconnect, probe
 from cluster.coordinator import INLINE_COMMITS, Coordinator, gap_idle_percent
 from cluster.scene_graph import SceneGraph
@@ -307,16 +307,40 @@ def test_a_straggler_is_duplicated_and_its_late_answer_discarded(fresh):
     assert np.array_equal(following.rgb, reference(graph.state, 1))
 
 
+def always_tail() -> CostAwareTail:
+    """cost-aware-tail with half of every frame as its tail, in chunks as small as one line,
+    whatever the frame's size (the defaults use no tail on these tiny, fast frames)."""
+    return CostAwareTail(fraction=0.5, min_chunk=0.0, min_seconds=0.0, min_lines=1)
+
+
+@pytest.mark.parametrize("tracers", [2, 3])
+def test_frames_with_a_dynamic_tail_equal_render_image(shared, tracers):
+    """Heads and chunks from 2 and 3 tracers: frames at several versions and frame numbers
+    equal render_image bit for bit, chunks included."""
+    coordinator = shared(tracers)
+    coordinator.balancer = always_tail()
+    graph = coordinator.graph
+    for number, edit, sample_start in [(0, None, 0), (1, MOVE, 0), (7, CAMERA_MOVE, 3)]:
+        if edit is not None:
+            graph.commit([edit])
+        frame = coordinator.render_frame(number, sample_start=sample_start)
+        assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
+        assert_covers(frame, 24)
+        kinds = [r.kind for r in frame.ranges]
+        assert kinds.count("split") == tracers and kinds.count("tail") >= tracers
+        assert frame.calls == len(frame.ranges) > tracers
+    coordinator.use_balancer("cost-aware")
+
+
 def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh):
-    """cost-aware-tail with two tracers through a pipelined 16-frame animation: the frames use
+    """A dynamic tail with two tracers through a pipelined 16-frame animation: the frames use
     chunks of the tail (more calls than tracers), a tracer killed mid-job loses no frame, every
     frame equals render_image of its pose, and the restarted tracer takes work again."""
     state = animated(16)
     expected = animation_references(state, range(16))
     graph = SceneGraph(state)
-    coordinator = fresh(
-        graph, tracers=2, balancer="cost-aware-tail", straggler_floor=30, delays=[0.03, 0.03]
-    )
+    coordinator = fresh(graph, tracers=2, straggler_floor=30, delays=[0.03, 0.03])
+    coordinator.balancer = always_tail()
     frames = []
     for frame in coordinator.render_animation():
         frames.append(frame)
@@ -336,10 +360,11 @@ def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh):
 
 
 def test_the_dynamic_tail_duplicates_a_straggler(fresh):
-    """With cost-aware-tail, a stalled tracer's head and queued chunk are copied to the idle
+    """With a dynamic tail, a stalled tracer's head and queued chunk are copied to the idle
     one once the tail is used up; the frame completes long before the stall ends."""
     graph = SceneGraph(studio())
-    coordinator = fresh(graph, tracers=2, balancer="cost-aware-tail", straggler_floor=0.3)
+    coordinator = fresh(graph, tracers=2, straggler_floor=0.3)
+    coordinator.balancer = always_tail()
     ray.get(coordinator.tracer_handle("t1").set_delay.remote(2.5))
     start = time.perf_counter()
     frame = coordinator.render_frame(0)
