@@ -16,12 +16,19 @@ graph's ``key``, so a service renders many scenes in turns without resending the
    Meanwhile failures are handled (below).
 3. **Learn**: the balancer observes each tracer's range, render seconds and per-line cost.
 
+With a dynamic tail (``cost-aware-tail``, :mod:`cluster.tail`) step 1 sends each tracer its
+head and one chunk of the tail, and step 2 sends a tracer another chunk whenever one of its
+results arrives, so a call is always queued behind the one it renders; the balancer then
+observes every accepted range. ``Frame.idle_percent`` counts a tracer's waits between its
+ranges as idle (:func:`gap_idle_percent`; Table 16's measure with one range per tracer).
+
 ``render_animation`` pipelines frames (Bikker's double buffering, 7.3.4): frame N+1's pose is
 committed to the graph and its render calls are submitted while frame N renders, so each
 tracer applies N+1's commits and starts N+1 as soon as it finishes N (Ray runs an actor's calls
 in submission order). At most ``KEEP_VERSIONS`` (2) frames are in flight: the replicas keep
 exactly the versions those frames need. The split of frame N+1 is chosen before frame N's
-timings are known, so the balancers learn with one frame of lag.
+timings are known, so the balancers learn with one frame of lag. With a dynamic tail, N+1 is
+submitted once N's tail is all handed out, so its calls queue behind N's last chunks.
 
 Failures:
 
