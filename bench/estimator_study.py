@@ -77,13 +77,15 @@ class Setup:
     floor: float
 
 
-def study_setup(path: Path, options: StudyOptions, reuse: bool = True) -> Setup:
+def study_setup(path: Path, options: StudyOptions, reuse: bool = False) -> Setup:
     """The scene, camera and reference exactly as ``cli.accuracy.study_scene`` makes them.
 
-    With ``reuse``, our own reference is read from the study's cache even when the cache key
-    misses, if a reference of the scene at this size is there (the newest one): the key hashes
-    every ``tracer/*.py``, so an edit of ``tracer/error_estimate.py`` alone, which renders
-    nothing, would otherwise render every reference again (16,384 spp each)."""
+    With ``reuse`` (``--reuse-references``), our own reference is read from the study's cache
+    even when the cache key misses, if a reference of the scene at this size is there (the
+    newest one): the key hashes every ``tracer/*.py``, so an edit of
+    ``tracer/error_estimate.py`` alone, which renders nothing, would otherwise render every
+    reference again (16,384 spp each). After a kernel change that reference may be stale, so
+    this is the caller's call."""
     scene = compile_scene(load_scene(path))
     width, height = study_size(scene.camera.width, scene.camera.height, options.pixels)
     camera = fmt.override(scene.camera, width=width, height=height)
@@ -402,7 +404,7 @@ def cmd_render(args) -> dict:
     seconds = {}
     for path in scene_paths(args.scenes):
         start = time.perf_counter()
-        setup = study_setup(path, options)
+        setup = study_setup(path, options, args.reuse_references)
         load_or_render(setup, args.batches, args.batch_spp, options.threads)
         seconds[setup.name] = time.perf_counter() - start
         console.print(f"{setup.name}: {seconds[setup.name]:.1f} s")
@@ -413,7 +415,7 @@ def cmd_evaluate(args) -> dict:
     options = StudyOptions(scenes=(), threads=args.threads)
     results = {}
     for path in scene_paths(args.scenes):
-        setup = study_setup(path, options)
+        setup = study_setup(path, options, args.reuse_references)
         means = load_or_render(setup, args.batches, args.batch_spp, args.threads)
         results[setup.name] = evaluate_scene(setup, means, args.max_spp)
     rows = summarise(results)
@@ -507,7 +509,7 @@ def cmd_validate(args) -> dict:
     out = {}
     rows = []
     for path in scene_paths(args.scenes):
-        setup = study_setup(path, options)
+        setup = study_setup(path, options, args.reuse_references)
         records = calibration(
             setup.scene, setup.camera, setup.ref, setup.floor, options, lambda n: None
         )
@@ -540,6 +542,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-spp", type=int, default=1024, help="largest level (default 1024)")
     parser.add_argument("--threads", type=int, help="render threads (default: all)")
     parser.add_argument("-v", "--verbose", action="store_true", help="every level's ratios")
+    parser.add_argument(
+        "--reuse-references",
+        action="store_true",
+        help="use the newest cached reference of a scene even if the tracer's code changed "
+        "since it was rendered (only safe when the change renders nothing differently)",
+    )
     args = parser.parse_args(argv)
     if args.batch_spp < 1 or args.batch_spp & (args.batch_spp - 1):
         parser.error("--batch-spp must be a power of two")
