@@ -8,7 +8,9 @@ this process, and every image is compared with the scene's one reference
    and the effect plan on and off) takes samples 1, 2, 4, ... ``max_spp`` in doubling waves
    over disjoint sample ranges; the configurations take turns wave by wave (slow drifts of a
    shared machine hit them alike). After each wave the mean so far is measured: relative MSE,
-   RMSE, PSNR, SSIM and FLIP (:func:`measure`), against the seconds and kernel work spent.
+   RMSE, PSNR, SSIM and FLIP (:func:`measure`), against the seconds spent, the rays traced
+   (camera, continuation, shadow and occlusion rays; :func:`render_counted`) and the kernel's
+   work (BVH node visits plus triangle tests).
 2. **Effect costs** after Reiter's eq. 5.1 (:func:`effect_costs`).
 3. **Time to quality**: seconds to reach a relative MSE (:func:`time_to`).
 4. **Calibration** of the online error estimate against the true error (:func:`calibration`).
@@ -270,6 +272,29 @@ def refresh_time_to(results: dict) -> None:
             data["time_to"] = {f"{t:g}": time_to(data["levels"], t) for t in TARGETS}
 
 
+def render_counted(
+    scene: CompiledScene,
+    camera: fmt.Camera,
+    settings: fmt.RenderSettings,
+    sample_start: int,
+    threads: int,
+    plan: EffectPlan,
+) -> tuple[np.ndarray, int, int]:
+    """A frame (:func:`tracer.render.render_image`) with the rays it traced and the kernel work
+    it took: ``(rgb, rays, work)``."""
+    rays = []
+    rgb, cost = render_image(
+        scene,
+        camera,
+        settings,
+        sample_start=sample_start,
+        threads=threads,
+        plan=plan,
+        on_lines=lambda lines: rays.append(int(lines.rays.sum())),
+    )
+    return rgb, sum(rays), int(cost.sum())
+
+
 class RenderClock:
     """Render time that a busy shared machine does not inflate: the process's CPU seconds
     (every render thread's) divided by the thread count, which is the wall-clock time of the
@@ -301,6 +326,7 @@ class _Run:
     spp: int = 0
     seconds: float = 0.0
     wall_seconds: float = 0.0
+    rays: int = 0
     work: int = 0
     levels: list = field(default_factory=list)
 
@@ -330,25 +356,23 @@ def sweep(
         for run in runs:
             n = level - run.spp
             with RenderClock(threads) as clock:
-                rgb, cost = render_image(
-                    scene,
-                    camera,
-                    fmt.override(run.settings, spp=n),
-                    sample_start=run.spp,
-                    threads=threads,
-                    plan=run.plan,
+                rgb, rays, work = render_counted(
+                    scene, camera, fmt.override(run.settings, spp=n), run.spp, threads, run.plan
                 )
             run.seconds += clock.seconds
             run.wall_seconds += clock.wall_seconds
             run.total += rgb.astype(np.float64) * n
             run.spp = level
-            run.work += int(cost.sum())
+            run.rays += rays
+            run.work += work
             image = run.total / level
             flip = index % options.flip_every == 0 or index == len(levels) - 1
             record = {
                 "spp": level,
                 "seconds": run.seconds,
                 "wall_seconds": run.wall_seconds,
+                "rays": run.rays,
+                "mrays_per_second": run.rays / run.seconds / 1e6 if run.seconds > 0 else None,
                 "work": run.work,
             }
             run.levels.append(record | measure(image, ref, floor, flip))
@@ -430,19 +454,16 @@ def effect_costs(
         render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=threads)
         stages.append((name, settings, plan, np.zeros((camera.height, camera.width, 3)), []))
     work = dict.fromkeys((name for name, *_ in stages), 0)
+    rays = dict.fromkeys(work, 0)
     for round_index in range(options.repeats):
         for name, settings, plan, total, seconds in stages:
             with RenderClock(threads) as clock:
-                rgb, cost = render_image(
-                    scene,
-                    camera,
-                    settings,
-                    sample_start=round_index * options.effect_spp,
-                    threads=threads,
-                    plan=plan,
+                rgb, stage_rays, stage_work = render_counted(
+                    scene, camera, settings, round_index * options.effect_spp, threads, plan
                 )
             seconds.append(clock.seconds)
-            work[name] += int(cost.sum())
+            rays[name] += stage_rays
+            work[name] += stage_work
             total += rgb
             on_samples(options.effect_spp)
     median = {name: float(np.median(seconds)) for name, _, _, _, seconds in stages}
@@ -458,6 +479,7 @@ def effect_costs(
                 "effects": plan.names(),
                 "seconds": seconds,
                 "median_seconds": median[name],
+                "rays": rays[name] / options.repeats,
                 "work": work[name] / options.repeats,
                 "rel_mse": rel_mse(total / options.repeats, ref.mean) - floor,
             }

@@ -156,16 +156,18 @@ def path_kernel(materials: bool, lights: bool):
         stack_t,
         out_rgb,
         out_cost,
+        out_rays,
     ):
         """Render pixel blocks ``first, first + stride, ...`` of lines [y0, y1).
 
         ``scene`` is a ``SceneArrays``. ``out_rgb`` float32 (y1-y0, W, 3) gets the mean of samples
         [sample_start, sample_start + spp) of each pixel, ``out_cost`` int64 (y1-y0, W) the work
-        spent on it. ``mode`` is ``PATH`` or ``WHITTED``; ``plan`` the effect flags
-        (``tracer.effects``). Threads call this with the same stride and different ``first``:
-        interleaved blocks of ``PIXEL_BLOCK`` pixels balance lines of very different cost, and
-        keep threads off each other's cache lines. ``stack_node`` (int32) and ``stack_t`` (float64)
-        are this thread's traversal stacks.
+        spent on it, ``out_rays`` int64 (y1-y0, W) the rays traced for it (one per traversal:
+        camera, continuation and shadow rays). ``mode`` is ``PATH`` or ``WHITTED``; ``plan`` the
+        effect flags (``tracer.effects``). Threads call this with the same stride and different
+        ``first``: interleaved blocks of ``PIXEL_BLOCK`` pixels balance lines of very different
+        cost, and keep threads off each other's cache lines. ``stack_node`` (int32) and
+        ``stack_t`` (float64) are this thread's traversal stacks.
 
         Every array is borrowed (:mod:`tracer.borrow`) before the loops, so the inlined path code
         passes them around without atomic reference counting.
@@ -190,6 +192,7 @@ def path_kernel(materials: bool, lights: bool):
                 p_key = pixel_key(seed, frame, y * width + x)
                 acc = (0.0, 0.0, 0.0)
                 cost = 0
+                rays = 0
                 for sample in range(sample_start, sample_start + spp):
                     key = sample_key(p_key, sample)
                     o, d = camera_sample_ray(camera, width, height, x, y, key)
@@ -202,6 +205,7 @@ def path_kernel(materials: bool, lights: bool):
                         # Trace the ray to the next path vertex; a miss sees the sky and suns.
                         k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
                         cost += c
+                        rays += 1
                         if k < 0:
                             if lights and plan & (effects.SKY | effects.SUN):
                                 weighted = (mode == PATH and depth > 1 and not delta_prev
@@ -314,6 +318,7 @@ def path_kernel(materials: bool, lights: bool):
                                 if plan & effects.SHADOWS:
                                     blocked, c = scene_occluded(s, s_o, s_d, t_max, stack_node)
                                     cost += c
+                                    rays += 1
                                 if not blocked:
                                     L = (L[0] + beta[0] * Ld[0], L[1] + beta[1] * Ld[1],
                                          L[2] + beta[2] * Ld[2])  # fmt: skip
@@ -357,6 +362,7 @@ def path_kernel(materials: bool, lights: bool):
                 out_rgb[row, x, 1] = acc[1] / spp
                 out_rgb[row, x, 2] = acc[2] / spp
                 out_cost[row, x] = cost
+                out_rays[row, x] = rays
 
     trace_pixels.__qualname__ = f"trace_pixels_{'m' if materials else 'l'}{'o' if lights else 't'}"
     return jit(trace_pixels)
@@ -379,7 +385,7 @@ def kernel_for(plan: int):
 @jit
 def render_pixels_specialised(scene, camera, width, height, y0, y1, sample_start, spp, max_depth,
                               rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride,
-                              stack_node, stack_t, out_rgb, out_cost):  # fmt: skip
+                              stack_node, stack_t, out_rgb, out_cost, out_rays):  # fmt: skip
     """The path kernel compiled for one plan and mode: ``numba.literally`` makes both constants,
     so numba compiles (and caches) one kernel per value and LLVM removes every branch the plan
     switches off. Kept to measure against the runtime flags (``docs/effects.md``)."""
@@ -387,4 +393,4 @@ def render_pixels_specialised(scene, camera, width, height, y0, y1, sample_start
     literally(plan)
     render_pixels_all(scene, camera, width, height, y0, y1, sample_start, spp, max_depth,
                       rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride, stack_node,
-                      stack_t, out_rgb, out_cost)  # fmt: skip
+                      stack_t, out_rgb, out_cost, out_rays)  # fmt: skip

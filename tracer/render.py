@@ -36,12 +36,14 @@ SAMPLES_PER_CALL = 1 << 18
 @dataclass
 class RenderedLines:
     """Lines [y0, y1): ``rgb`` float32 (y1-y0, W, 3) linear radiance, mean of ``spp`` samples;
-    ``cost`` int64 (y1-y0,) work per line (BVH node visits plus triangle tests)."""
+    ``cost`` int64 (y1-y0,) work per line (BVH node visits plus triangle tests); ``rays`` int64
+    (y1-y0,) rays traced per line (camera, continuation, shadow and occlusion rays)."""
 
     y0: int
     y1: int
     rgb: np.ndarray
     cost: np.ndarray
+    rays: np.ndarray
     spp: int
     seconds: float
 
@@ -98,6 +100,7 @@ def render_lines(
     )
     rgb = np.empty((y1 - y0, camera.width, 3), np.float32)
     cost = np.empty((y1 - y0, camera.width), np.int64)
+    rays = np.empty((y1 - y0, camera.width), np.int64)
     start = time.perf_counter()
     if settings.integrator in OUTPUTS:
         surface_args = (
@@ -120,11 +123,11 @@ def render_lines(
         def surface_work(part: int, parts: int) -> None:
             stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
             stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
-            render_surface(*surface_args, part, parts, stack_node, stack_t, rgb, cost)
+            render_surface(*surface_args, part, parts, stack_node, stack_t, rgb, cost, rays)
 
         run_parts(surface_work, threads)
         seconds = time.perf_counter() - start
-        return RenderedLines(y0, y1, rgb, cost.sum(axis=1), settings.spp, seconds)
+        return RenderedLines(y0, y1, rgb, cost.sum(axis=1), rays.sum(axis=1), settings.spp, seconds)
     max_depth = settings.max_depth
     path = settings.integrator in ("path", "cost")
     if settings.integrator == "direct" or (path and not plan.flags & effects.INDIRECT):
@@ -155,13 +158,13 @@ def render_lines(
     def work(part: int, parts: int) -> None:
         stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
         stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
-        kernel(*args, part, parts, stack_node, stack_t, rgb, cost)
+        kernel(*args, part, parts, stack_node, stack_t, rgb, cost, rays)
 
     run_parts(work, threads)
     if settings.integrator == "cost":
         rgb = cost_heatmap(cost, settings.spp)
     seconds = time.perf_counter() - start
-    return RenderedLines(y0, y1, rgb, cost.sum(axis=1), settings.spp, seconds)
+    return RenderedLines(y0, y1, rgb, cost.sum(axis=1), rays.sum(axis=1), settings.spp, seconds)
 
 
 def scene_diagonal(scene: CompiledScene) -> float:

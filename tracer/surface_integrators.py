@@ -65,12 +65,14 @@ def render_surface(
     stack_t,
     out_rgb,
     out_cost,
+    out_rays,
 ):
     """Render ``output`` (``AO``, ``ALBEDO``, ``NORMAL`` or ``DEPTH``) for pixel blocks
     ``first, first + stride, ...`` of lines [y0, y1); arguments as the path kernel's
     (``integrator.path_kernel``), plus ``ao_samples`` occlusion rays per camera sample of
     length ``ao_length`` (render-space units), and ``textures``: whether the albedo output
-    applies base-colour textures (the effect plan's ``TEXTURES``)."""
+    applies base-colour textures (the effect plan's ``TEXTURES``). ``out_rays`` gets the rays
+    traced per pixel: each camera ray, and each occlusion ray (``AO`` only)."""
     s = borrow_scene(scene)
     camera = borrowed(camera)
     stack_node = borrowed(stack_node)
@@ -84,11 +86,13 @@ def render_surface(
             p_key = pixel_key(seed, frame, y * width + x)
             acc = (0.0, 0.0, 0.0)
             cost = 0
+            rays = 0
             for sample in range(sample_start, sample_start + spp):
                 key = sample_key(p_key, sample)
                 o, d = camera_sample_ray(camera, width, height, x, y, key)
                 k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
                 cost += c
+                rays += 1
                 if k < 0:
                     continue
                 mat = material_of(s, k, j)
@@ -114,6 +118,7 @@ def render_surface(
                         origin = spawn(s, k, p_o, n_o, dist, ng, w)
                         blocked, c = scene_occluded(s, origin, w, ao_length, stack_node)
                         cost += c
+                        rays += 1
                         if not blocked:
                             open_count += 1
                     ao = open_count / ao_samples
@@ -123,3 +128,4 @@ def render_surface(
             out_rgb[row, x, 1] = acc[1] / spp
             out_rgb[row, x, 2] = acc[2] / spp
             out_cost[row, x] = cost
+            out_rays[row, x] = rays

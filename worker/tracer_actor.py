@@ -67,6 +67,8 @@ class LinesResult:
     """Changes when Ray restarts the actor (a new process with an empty replica)."""
     effects: dict | None = None
     """The effect plan the lines were rendered with (``tracer.effects.EffectPlan.to_json``)."""
+    rays: np.ndarray | None = None
+    """int64 (y1 - y0,): rays traced per line (camera, continuation, shadow and occlusion)."""
 
 
 @dataclass(frozen=True)
@@ -237,6 +239,7 @@ class Tracer:
             node=self.node,
             incarnation=self.incarnation,
             effects=plan.to_json(),
+            rays=lines.rays,
         )
 
     def warm_up(self) -> dict:

@@ -112,6 +112,28 @@ def test_same_images_same_errors(study):
     assert errors("direct") == errors("path-d2")
 
 
+def test_sweep_counts_rays(study):
+    """The sweep records the rays traced, summed over the levels: a path of one vertex traces
+    only camera rays, ``direct`` the rays of the two-vertex path, deeper paths more; ambient
+    occlusion adds its occlusion rays to the camera rays. Reiter's diffuse stage (no shadows,
+    no recursion) traces camera rays alone, and shadows add rays."""
+    options, result, _ = study
+    pixels = 32 * 32
+    depth1 = levels_of(result, "path-d1")
+    assert all(level["rays"] == spp * pixels for spp, level in depth1.items())
+    path = levels_of(result, DEFAULT_CONFIG)
+    assert path[64]["rays"] > levels_of(result, "path-d2")[64]["rays"] > depth1[64]["rays"]
+    rays = {name: [lv["rays"] for lv in data["levels"]] for name, data in result["configs"].items()}
+    assert rays["direct"] == rays["path-d2"]
+    ao = levels_of(result, "ao")[64]["rays"]
+    assert 64 * pixels < ao <= 64 * pixels * (1 + load_scene(CORNELL).render.ao_samples)
+    last = path[64]
+    assert last["mrays_per_second"] == pytest.approx(last["rays"] / last["seconds"] / 1e6)
+    stages = {s["name"]: s for s in result["effects"]["stages"]}
+    assert stages["diffuse"]["rays"] == options.effect_spp * pixels
+    assert stages["diffuse + shadows"]["rays"] > stages["diffuse"]["rays"]
+
+
 def test_time_to_quality(study):
     _, result, _ = study
     entry = result["configs"][DEFAULT_CONFIG]["time_to"]["0.01"]

@@ -36,6 +36,7 @@ def rendered(tracer, version, commits=(), frame=0, ranges=None, **kw) -> np.ndar
         assert (out.frame, out.version, out.y0, out.y1) == (frame, version, y0, y1)
         assert out.rgb.dtype == np.float32 and out.cost.dtype == np.int64
         assert out.cost.shape == (y1 - y0,)
+        assert out.rays.shape == (y1 - y0,) and np.all(out.rays >= out.rgb.shape[1])
         parts.append(out.rgb)
     return np.concatenate(parts)
 
