@@ -435,18 +435,20 @@ def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
         f"![{name}: image strip]({image_dir}/strip-{name}.png)",
         "",
         f"At {max_spp} spp (relative MSE, RMSE in linear radiance, PSNR/SSIM/FLIP of the sRGB "
-        "display images), work in millions of BVH node visits and triangle tests, and the time "
-        "to reach a relative MSE of 1e-2 and 1e-3:",
+        "display images), millions of rays traced (camera, continuation, shadow and occlusion "
+        "rays) and their rate, work in millions of BVH node visits and triangle tests, and the "
+        "time to reach a relative MSE of 1e-2 and 1e-3:",
         "",
-        "| configuration | seconds | work (M) | relMSE | RMSE | PSNR | SSIM | FLIP "
-        "| to 1e-2 | to 1e-3 |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| configuration | seconds | rays (M) | Mrays/s | work (M) | relMSE | RMSE | PSNR "
+        "| SSIM | FLIP | to 1e-2 | to 1e-3 |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for config, data in scene["configs"].items():
         last = data["levels"][-1]
         flip = "-" if last["flip"] is None else f"{last['flip']:.3f}"
         lines.append(
             f"| `{config}`: {data['label']} | {seconds_text(last['seconds'])} | "
+            f"{last['rays'] / 1e6:.1f} | {last['mrays_per_second']:.2f} | "
             f"{last['work'] / 1e6:.0f} | {last['rel_mse']:.2e} | {last['rmse']:.4f} | "
             f"{last['psnr']:.1f} | {last['ssim']:.3f} | {flip} | "
             f"{time_to_text(data['time_to']['0.01'])} | {time_to_text(data['time_to']['0.001'])} |"
@@ -455,16 +457,16 @@ def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
     lines += [
         "",
         f"Effect costs ({costs['spp']} spp, median of {costs['repeats']} interleaved rounds; "
-        "work per round in millions of BVH node visits and triangle tests; relative MSE of "
-        "each stage's image over all rounds):",
+        "rays and work per round in millions (rays traced; BVH node visits and triangle tests); "
+        "relative MSE of each stage's image over all rounds):",
         "",
-        "| stage | integrator | seconds | work (M) | relMSE |",
-        "|---|---|---|---|---|",
+        "| stage | integrator | seconds | rays (M) | work (M) | relMSE |",
+        "|---|---|---|---|---|---|",
     ]
     for stage in costs["stages"]:
         lines.append(
             f"| {stage['name']} | {stage['integrator']} | {seconds_text(stage['median_seconds'])} "
-            f"| {stage['work'] / 1e6:.1f} | {stage['rel_mse']:.2e} |"
+            f"| {stage['rays'] / 1e6:.2f} | {stage['work'] / 1e6:.1f} | {stage['rel_mse']:.2e} |"
         )
     lines.append("")
     return lines
