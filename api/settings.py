@@ -12,6 +12,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from cluster.balance import DEFAULT_BALANCER
+
 ENV_PREFIX = "TILERENDER_"
 MiB = 1024 * 1024
 
@@ -41,7 +43,7 @@ class Settings(BaseModel):
     tracers: int | None = Field(default=None, ge=1, le=1024)
     threads: float | None = Field(default=None, gt=0, description="CPUs per tracer")
     num_cpus: int | None = Field(default=None, ge=1, description="CPUs of the embedded Ray")
-    balancer: str = "cost-aware"
+    balancer: str = DEFAULT_BALANCER
     tracer_nice: int = Field(
         default=10,
         ge=0,

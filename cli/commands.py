@@ -11,7 +11,8 @@ import pydantic
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from cli.main import DEFAULT_BALANCER, CommandFailed, UsageError
+from cli.main import CommandFailed, UsageError
+from cluster.balance import DEFAULT_BALANCER
 from tracer import numba_cache
 from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene

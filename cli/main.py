@@ -46,10 +46,6 @@ examples:
   tilerender schema > scene-schema.json"""
 
 
-DEFAULT_BALANCER = "cost-aware"
-"""The balancer of ``render`` and ``serve`` when ``--balancer`` is not given."""
-
-
 class UsageError(Exception):
     """A problem with the command line or its inputs, reported in one line."""
 
@@ -336,7 +332,7 @@ def add_bench_parser(sub) -> None:
 
 
 def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) -> None:
-    from cluster.balance import BALANCERS  # light: numpy only
+    from cluster.balance import BALANCERS, DEFAULT_BALANCER  # light: numpy only
 
     parser.add_argument(
         "--tracers",

@@ -739,6 +739,8 @@ class CostAwareTail(CostAware):
 BALANCERS: dict[str, type[Balancer]] = {
     cls.name: cls for cls in (Balancer, RobinHood, Perfect, PerfectSmooth, CostAware, CostAwareTail)
 }
+DEFAULT_BALANCER = CostAware.name
+"""The balancer of the coordinator, ``render`` and ``serve`` unless one is named."""
 
 
 def make_balancer(name: str) -> Balancer:

@@ -69,7 +69,7 @@ from ray.exceptions import ActorDiedError, RayActorError, RayError, RayTaskError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from cluster.assembler import Assembler, runs
-from cluster.balance import BALANCERS, TracerReport, even_split, make_balancer
+from cluster.balance import DEFAULT_BALANCER, TracerReport, even_split, make_balancer
 from cluster.connect import connect
 from cluster.scene_graph import SceneGraph
 from cluster.tail import TailPlan
@@ -81,7 +81,6 @@ from worker.tracer_actor import MAX_SCENES, LinesResult, OutOfSync, TracerInfo, 
 
 log = logging.getLogger("tilerender.cluster")
 
-DEFAULT_BALANCER = "cost-aware" if "cost-aware" in BALANCERS else "none"
 STRAGGLER_FACTOR = 2.0
 """A range is a straggler after this many times its predicted time ..."""
 STRAGGLER_FLOOR = 0.5
