@@ -125,15 +125,6 @@ class HindsightSplit:
                 self.seconds[r.tracer] = self.seconds.get(r.tracer, 0.0) + r.seconds
 
 
-def orbit_run(coordinator: Coordinator, cameras: list, settings) -> list:
-    """One warm-up frame, then every orbit frame; returns the frames."""
-    coordinator.render_frame(camera=cameras[0], settings=settings)
-    return [
-        coordinator.render_frame(frame=k, camera=cam, settings=settings)
-        for k, cam in enumerate(cameras)
-    ]
-
-
 def speed_noise(frames: list) -> float:
     """Timing noise: the coefficient of variation, over frames, of each tracer's speed (its
     range's cost per busy second), averaged over tracers, in %."""
@@ -147,9 +138,13 @@ def speed_noise(frames: list) -> float:
     return 100 * statistics.fmean(cvs) if cvs else float("nan")
 
 
-def idle_real(frames: int, balancers: list[str], width: int, height: int, oracle: bool) -> dict:
+def idle_real(
+    frames: int, balancers: list[str], width: int, height: int, oracle: bool, sequential: bool
+) -> dict:
     """Idle per orbit and balancer with two one-CPU tracers each, the balancers' coordinators
-    taking turns frame by frame (so load on a shared machine hits them alike); with
+    taking turns frame by frame (so load on a shared machine hits them alike), or with
+    ``sequential`` each rendering its whole orbit in turn (no switching between the
+    coordinators' tracer processes, the steadier measure on a quiet machine); with
     ``oracle``, also the hindsight split (:class:`HindsightSplit`) of the costs the first
     balancer's run records as it goes. Per run: mean idle % (Table 16's measure, waits between
     a tracer's ranges counted), mean span idle % (over the wall time), mean wall ms per frame,
@@ -176,12 +171,16 @@ def idle_real(frames: int, balancers: list[str], width: int, height: int, oracle
                 warm = c.render_frame(camera=cameras[0], settings=settings)
                 if name == names[0]:
                     recorded.append(warm.cost)
-            for k, camera in enumerate(cameras):
-                for name, c in coordinators.items():
-                    frame = c.render_frame(frame=k, camera=camera, settings=settings)
-                    done[name].append(frame)
-                    if name == names[0]:
-                        recorded.append(frame.cost)
+            if sequential:
+                order = [(k, name) for name in names for k in range(frames)]
+            else:
+                order = [(k, name) for k in range(frames) for name in names]
+            for k, name in order:  # the oracle comes after the first balancer's frame k
+                c = coordinators[name]
+                frame = c.render_frame(frame=k, camera=cameras[k], settings=settings)
+                done[name].append(frame)
+                if name == names[0]:
+                    recorded.append(frame.cost)
         finally:
             for c in coordinators.values():
                 c.close()
@@ -311,6 +310,13 @@ def main(argv: list[str] | None = None) -> int:
         help="skip the hindsight split (exact costs of each frame, recorded by the first "
         "balancer's run): the idle that timing noise alone leaves",
     )
+    parser.add_argument(
+        "--sequential",
+        action="store_true",
+        help="idle section: each balancer renders its whole orbit in turn instead of the "
+        "balancers taking turns frame by frame (steadier on a quiet machine; fair only if the "
+        "load does not change)",
+    )
     parser.add_argument("--quick", action="store_true", help="small sizes, few frames")
     args = parser.parse_args(argv)
     if args.quick:
@@ -357,7 +363,9 @@ def main(argv: list[str] | None = None) -> int:
             )  # fmt: skip
         if "idle" not in args.skip:
             width, height = args.orbit_size
-            idle = idle_real(args.frames, args.balancers, width, height, not args.no_oracle)
+            idle = idle_real(
+                args.frames, args.balancers, width, height, not args.no_oracle, args.sequential
+            )
             payload["idle_real"] = idle
             rows = [*args.balancers, *([] if args.no_oracle else ["oracle"])]
             noise, runs = idle["speed_noise_percent"], idle["runs"]
@@ -367,7 +375,9 @@ def main(argv: list[str] | None = None) -> int:
 
             print_table(
                 f"Idle % with 2 real tracers (1 CPU each), {args.frames} frames, {width}x{height},"
-                " balancers taking turns frame by frame (idle: Table 16's measure, waits between"
+                + (" one balancer after another" if args.sequential
+                   else " balancers taking turns frame by frame")
+                + " (idle: Table 16's measure, waits between"
                 " a tracer's ranges counted; span: over the wall time; speed noise: CV of each"
                 " tracer's cost per second over frames)",
                 ["balancer", "slow orbit", "fast orbit", "span idle slow / fast",
