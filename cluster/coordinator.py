@@ -801,15 +801,22 @@ class Coordinator:
                 self.graph.frame_commit(number)
                 in_flight.append(self.submit_frame(number, camera, settings, sample_start))
 
-        schedule_next()
-        while in_flight:
+        def top_up() -> None:
+            """Submit frames until ``depth`` are in flight (each after the one before it has
+            handed out its whole dynamic tail, so its calls queue behind that tail)."""
             while len(in_flight) < depth:
-                self._wait_dispatched(in_flight[-1])
+                if in_flight:
+                    self._wait_dispatched(in_flight[-1])
                 before = len(in_flight)
                 schedule_next()
                 if len(in_flight) == before:
-                    break  # no frames left
-            yield self.wait_frame(in_flight.pop(0))
+                    return  # no frames left
+
+        top_up()
+        while in_flight:
+            done = self.wait_frame(in_flight.pop(0))
+            top_up()  # N+2 is submitted before N is handed to the caller
+            yield done
 
     def _wait_dispatched(self, job: FrameJob) -> None:
         """Collect ``job``'s results until its dynamic tail is all handed out (at once without
@@ -847,7 +854,6 @@ class Coordinator:
             return
         now = time.perf_counter()
         slot.last_done = now
-        self._feed(job, slot)  # the next chunk queues while this tracer works on its last
         if isinstance(out, OutOfSync):
             _hold(slot, out.scene, out.have)
             slot.incarnation = out.incarnation
@@ -867,6 +873,9 @@ class Coordinator:
             again.resent = True
             return
         slot.pid, slot.node, slot.incarnation = out.pid, out.node, out.incarnation
+        # The next chunk queues while this tracer works on its last (after an OutOfSync answer
+        # the resend above keeps it busy, and the chunk waits until the tracer is in sync).
+        self._feed(job, slot)
         if job.assembler.accept(out) <= 0:  # refused (-1), or lines another copy delivered
             return
         job.ranges.append(

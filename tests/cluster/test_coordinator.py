@@ -230,6 +230,29 @@ def wait_ready(coordinator: Coordinator, tracer: str, timeout: float = 60.0) -> 
         time.sleep(0.1)
 
 
+@pytest.mark.parametrize("pipeline", [1, 2])
+def test_every_frame_of_an_animation_comes_in_order_at_any_pipeline_depth(
+    fresh, monkeypatch, pipeline
+):
+    """render_animation yields every frame, in order, with pipeline 1 (off) and 2; with 2,
+    frame N+2 is already submitted when N reaches the caller (Bikker's double buffering)."""
+    coordinator = fresh(SceneGraph(animated(5)), tracers=1)
+    submitted = []
+    submit = coordinator.submit_frame
+
+    def recording(number, *args, **kwargs):
+        submitted.append(number)
+        return submit(number, *args, **kwargs)
+
+    monkeypatch.setattr(coordinator, "submit_frame", recording)
+    seen = []
+    for frame in coordinator.render_animation(pipeline=pipeline):
+        seen.append(frame.frame)
+        ahead = min(frame.frame + pipeline, 4)
+        assert submitted[-1] == ahead, (frame.frame, submitted)
+    assert seen == [0, 1, 2, 3, 4] and submitted == seen
+
+
 def test_a_killed_tracer_loses_no_frame_of_an_animation(fresh):
     """ray.kill (restart allowed) of one of two tracers during a 32-frame pipelined
     animation: every frame arrives, each equal to render_image of its pose; the tracer is
