@@ -208,6 +208,10 @@ def idle_real(
     return out
 
 
+CALLS_MIN_HEIGHT = 480
+"""Least image height of the calls section (smaller orbit sizes run it at 640x480)."""
+
+
 def call_costs(width: int, height: int, repeats: int) -> dict:
     """What a render call costs a real tracer outside rendering (the simulator's
     ``--latency-ms`` and ``--call-gap-ms``), on the orbit scene at ``width`` x ``height``:
@@ -389,7 +393,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"{noise['slow'][b]:.1f}% / {noise['fast'][b]:.1f}%"] for b in rows],
             )  # fmt: skip
         if "calls" not in args.skip:
-            width, height = args.orbit_size
+            # Its calls take ranges in the lower 40 + height / 8 lines: at least 480 lines.
+            width, height = (args.orbit_size if args.orbit_size[1] >= CALLS_MIN_HEIGHT
+                             else (640, CALLS_MIN_HEIGHT))  # fmt: skip
             calls = call_costs(width, height, max(3, args.repeats))
             payload["calls"] = calls
             print_table(
