@@ -418,6 +418,12 @@ def effect_summary(results: dict) -> list[str]:
     return lines
 
 
+def number_text(value: float | None, scale: float, digits: int) -> str:
+    """``value * scale`` with ``digits`` decimals, or "-" when there is none (results from
+    before the ray counter, or a level of zero seconds)."""
+    return "-" if value is None else f"{value * scale:.{digits}f}"
+
+
 def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
     ref = scene["reference"]
     width, height = scene["size"]
@@ -448,7 +454,8 @@ def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
         flip = "-" if last["flip"] is None else f"{last['flip']:.3f}"
         lines.append(
             f"| `{config}`: {data['label']} | {seconds_text(last['seconds'])} | "
-            f"{last['rays'] / 1e6:.1f} | {last['mrays_per_second']:.2f} | "
+            f"{number_text(last.get('rays'), 1e-6, 1)} | "
+            f"{number_text(last.get('mrays_per_second'), 1.0, 2)} | "
             f"{last['work'] / 1e6:.0f} | {last['rel_mse']:.2e} | {last['rmse']:.4f} | "
             f"{last['psnr']:.1f} | {last['ssim']:.3f} | {flip} | "
             f"{time_to_text(data['time_to']['0.01'])} | {time_to_text(data['time_to']['0.001'])} |"
@@ -466,7 +473,8 @@ def scene_section(name: str, scene: dict, image_dir: str) -> list[str]:
     for stage in costs["stages"]:
         lines.append(
             f"| {stage['name']} | {stage['integrator']} | {seconds_text(stage['median_seconds'])} "
-            f"| {stage['rays'] / 1e6:.2f} | {stage['work'] / 1e6:.1f} | {stage['rel_mse']:.2e} |"
+            f"| {number_text(stage.get('rays'), 1e-6, 2)} | {stage['work'] / 1e6:.1f} "
+            f"| {stage['rel_mse']:.2e} |"
         )
     lines.append("")
     return lines

@@ -237,7 +237,8 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--threads",
         type=positive_int,
-        help="render threads (CPUs) per tracer (default: all of its node's CPUs)",
+        help="render threads (CPUs) per tracer, or of this process when rendering in it "
+        "(default: all of the node's CPUs)",
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
@@ -343,7 +344,7 @@ def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) ->
         "--balancer",
         metavar="NAME",
         help=f"how lines are split among tracers: {', '.join(sorted(BALANCERS))} "
-        f"(default: {DEFAULT_BALANCER})",
+        f"(default: {DEFAULT_BALANCER}; for serve, TILERENDER_BALANCER if set)",
     )
     parser.add_argument(
         "--ray-address",
