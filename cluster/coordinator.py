@@ -952,15 +952,25 @@ class Coordinator:
         per_line = float(np.median([r.seconds / (r.y1 - r.y0) for r in job.ranges]))
         apply = float(np.median([r.apply_seconds for r in job.ranges]))
         now = time.perf_counter()
-        for task in list(job.pending.values()):
+        running: set[str] = set()  # tracers whose first pending call (the one running) is seen
+        stuck: set[str] = set()  # tracers whose running call is a straggler
+        for task in list(job.pending.values()):  # in submission order
             if not idle:
                 break
+            tracer, queued = task.slot.id, task.slot.id in running
+            running.add(tracer)
+            if queued and tracer not in stuck:
+                continue  # behind a call that is on time: it has not started yet
             if task.duplicated or task.kind == "duplicate":
+                if task.duplicated:
+                    stuck.add(tracer)
                 continue
             started = max(task.submitted, task.slot.last_done)
             predicted = apply + per_line * (task.y1 - task.y0)
-            if now - started <= self.straggler_factor * predicted + self.straggler_floor:
+            late = now - started > self.straggler_factor * predicted + self.straggler_floor
+            if not (queued or late):  # a call queued behind a straggler waits as long as it
                 continue
+            stuck.add(tracer)
             missing = job.assembler.missing(task.y0, task.y1)
             if not missing:
                 continue
@@ -1019,7 +1029,7 @@ class Coordinator:
         from a duplicate reports the time it had run (a lower bound); a lost tracer reports
         nothing (the balancer keeps its prediction for those lines)."""
         if job.tail is not None:
-            self._observe_tail(job)
+            self._observe_tail(job, now)
             return
         reports = []
         by_id = {s.id: s for s in self._slots}
@@ -1036,9 +1046,11 @@ class Coordinator:
         if reports:
             self.balancer.observe(job.camera.height, reports)
 
-    def _observe_tail(self, job: FrameJob) -> None:
+    def _observe_tail(self, job: FrameJob, now: float) -> None:
         """Tell a dynamic-tail balancer every accepted range: heads and chunks with their
-        render seconds, lines of copies and reassignments with none (NaN: cost only)."""
+        render seconds, lines of copies and reassignments with none (NaN: cost only). A
+        straggler whose head came from a copy reports the time it had run on it (a lower
+        bound), as without a tail."""
         reports = [
             TracerReport(
                 r.tracer,
@@ -1049,6 +1061,13 @@ class Coordinator:
             )
             for r in job.ranges
         ]
+        by_id = {s.id: s for s in self._slots}
+        for tracer_id, y0, y1 in job.split:
+            slot = by_id.get(tracer_id)
+            if y1 > y0 and tracer_id not in job.primary and slot and slot.state == "ready":
+                seconds = now - max(job.submitted, slot.last_done)
+                cost = job.assembler.cost[y0:y1].copy()
+                reports.append(TracerReport(tracer_id, y0, y1, seconds, cost))
         if reports:
             self.balancer.observe(job.camera.height, reports)
 

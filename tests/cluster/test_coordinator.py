@@ -350,7 +350,8 @@ def test_frames_with_a_dynamic_tail_equal_render_image(shared, tracers):
         assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
         assert_covers(frame, 24)
         kinds = [r.kind for r in frame.ranges]
-        assert kinds.count("split") == tracers and kinds.count("tail") >= tracers
+        heads = sum(y1 > y0 for _, y0, y1 in frame.split)  # a slow tracer may get none
+        assert kinds.count("split") == heads and kinds.count("tail") >= tracers, kinds
         assert frame.calls == len(frame.ranges) > tracers
     coordinator.use_balancer("cost-aware")
 
@@ -396,6 +397,8 @@ def test_the_dynamic_tail_duplicates_a_straggler(fresh):
     assert frame.duplicates >= 1 and frame.failures == 0
     assert {r.tracer for r in frame.ranges} == {"t0"}
     assert {r.kind for r in frame.ranges} >= {"split", "tail", "duplicate"}
+    fast, slow = coordinator.balancer.speeds(["t0", "t1"])  # the stall is learnt (lower bound)
+    assert slow < 0.5 * fast, (fast, slow)
 
 
 def test_gap_idle_percent_counts_waits_between_ranges():
