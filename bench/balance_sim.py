@@ -34,6 +34,8 @@ import heapq
 import itertools
 import math
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -253,38 +255,61 @@ def scenarios(counts: list[int], equal_pair: bool) -> list[tuple[str, int, bool]
     return out + [(str(t), t, False) for t in counts]
 
 
-def run(args, factories: dict, jitter_sigma: float, lag: int, keep_frames: bool) -> dict:
-    """Every balancer on every orbit and scenario at one jitter level and lag; returns
-    ``{orbit: {scenario: {..., "balancers": {name: summary}}}}``."""
-    results: dict = {}
+@dataclass
+class Scenario:
+    """One orbit's trace with one set of simulated tracers and their jitter."""
+
+    orbit: str
+    label: str
+    count: int
+    equal: bool
+    cost: np.ndarray
+    relative_speeds: np.ndarray
+    speeds: np.ndarray
+    jitter: np.ndarray
+    noise_floor: float
+
+
+def orbit_scenarios(args, jitter_sigma: float) -> Iterator[Scenario]:
+    """Every orbit with every tracer count of ``args``: speeds scaled so a balanced frame
+    takes ``--frame-ms``, jitter drawn from a seed of its own, and the noise floor."""
     for orbit in args.orbits:
         cost = load_trace(orbit)[: args.frames]
-        frames, height = cost.shape
+        frames = cost.shape[0]
         mean_frame_cost = float(cost.sum(axis=1).mean())
-        results[orbit] = {}
         for label, count, equal in scenarios(args.tracers, not args.no_equal):
             rel = tracer_speeds(count, equal, args.seed, *args.speed_range)
             speeds = rel * mean_frame_cost / (rel.sum() * args.frame_ms * 1e-3)
             rng = np.random.default_rng([args.seed, count, int(equal)])
             jitter = np.exp(jitter_sigma * rng.standard_normal((frames, count)))
-            entry = {
-                "tracers": count,
-                "equal_speeds": equal,
-                "relative_speeds": np.round(rel, 4),
-                "lines": height,
-                "frames": frames,
-                "noise_floor": float(
-                    np.mean([idle_percent(args.frame_ms * j + args.overhead_ms) for j in jitter])
-                ),
-                "balancers": {},
-            }
-            for name, factory in factories.items():
-                balancer = ORACLE if factory == ORACLE else factory()
-                idle = simulate(balancer, cost, speeds, jitter, args.overhead_ms * 1e-3, lag)
-                entry["balancers"][name] = summarise(idle)
-                if keep_frames:
-                    entry["balancers"][name]["per_frame"] = np.round(idle, 2)
-            results[orbit][label] = entry
+            floor = float(
+                np.mean([idle_percent(args.frame_ms * j + args.overhead_ms) for j in jitter])
+            )
+            yield Scenario(orbit, label, count, equal, cost, rel, speeds, jitter, floor)
+
+
+def run(args, factories: dict, jitter_sigma: float, lag: int, keep_frames: bool) -> dict:
+    """Every balancer on every orbit and scenario at one jitter level and lag; returns
+    ``{orbit: {scenario: {..., "balancers": {name: summary}}}}``."""
+    results: dict = {}
+    for sc in orbit_scenarios(args, jitter_sigma):
+        frames, height = sc.cost.shape
+        entry = {
+            "tracers": sc.count,
+            "equal_speeds": sc.equal,
+            "relative_speeds": np.round(sc.relative_speeds, 4),
+            "lines": height,
+            "frames": frames,
+            "noise_floor": sc.noise_floor,
+            "balancers": {},
+        }
+        for name, factory in factories.items():
+            balancer = ORACLE if factory == ORACLE else factory()
+            idle = simulate(balancer, sc.cost, sc.speeds, sc.jitter, args.overhead_ms * 1e-3, lag)
+            entry["balancers"][name] = summarise(idle)
+            if keep_frames:
+                entry["balancers"][name]["per_frame"] = np.round(idle, 2)
+        results.setdefault(sc.orbit, {})[sc.label] = entry
     return results
 
 
@@ -293,42 +318,27 @@ def run_calls(args, factories: dict, jitter_sigma: float, lag: int) -> dict:
     tracer count; ``{orbit: {T: {"noise_floor": ..., "balancers": {name: summary}}}}`` where a
     summary holds the means over all frames of idle, span idle, wall (ms) and calls."""
     results: dict = {}
-    for orbit in args.orbits:
-        cost = load_trace(orbit)[: args.frames]
-        frames, _ = cost.shape
-        mean_frame_cost = float(cost.sum(axis=1).mean())
-        results[orbit] = {}
-        for label, count, equal in scenarios(args.tracers, not args.no_equal):
-            rel = tracer_speeds(count, equal, args.seed, *args.speed_range)
-            speeds = rel * mean_frame_cost / (rel.sum() * args.frame_ms * 1e-3)
-            rng = np.random.default_rng([args.seed, count, int(equal)])
-            jitter = np.exp(jitter_sigma * rng.standard_normal((frames, count)))
-            entry = {
-                "tracers": count,
-                "noise_floor": float(
-                    np.mean([idle_percent(args.frame_ms * j + args.overhead_ms) for j in jitter])
-                ),
-                "balancers": {},
+    for sc in orbit_scenarios(args, jitter_sigma):
+        entry = {"tracers": sc.count, "noise_floor": sc.noise_floor, "balancers": {}}
+        for name, factory in factories.items():
+            out = simulate_calls(
+                factory(),
+                sc.cost,
+                sc.speeds,
+                sc.jitter,
+                args.overhead_ms * 1e-3,
+                args.latency_ms * 1e-3,
+                args.call_gap_ms * 1e-3,
+                lag,
+            )
+            entry["balancers"][name] = {
+                "idle": float(out["idle"].mean()),
+                "idle_steady": float(out["idle"][STEADY_FROM:].mean()),
+                "span_idle": float(out["span_idle"].mean()),
+                "wall_ms": float(1e3 * out["wall"].mean()),
+                "calls_per_tracer": float(out["calls"].mean() / sc.count),
             }
-            for name, factory in factories.items():
-                out = simulate_calls(
-                    factory(),
-                    cost,
-                    speeds,
-                    jitter,
-                    args.overhead_ms * 1e-3,
-                    args.latency_ms * 1e-3,
-                    args.call_gap_ms * 1e-3,
-                    lag,
-                )
-                entry["balancers"][name] = {
-                    "idle": float(out["idle"].mean()),
-                    "idle_steady": float(out["idle"][STEADY_FROM:].mean()),
-                    "span_idle": float(out["span_idle"].mean()),
-                    "wall_ms": float(1e3 * out["wall"].mean()),
-                    "calls_per_tracer": float(out["calls"].mean() / count),
-                }
-            results[orbit][label] = entry
+        results.setdefault(sc.orbit, {})[sc.label] = entry
     return results
 
 
