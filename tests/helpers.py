@@ -182,3 +182,34 @@ def mean_and_error(passes: np.ndarray, axis=(1, 2)) -> tuple[np.ndarray, np.ndar
     per_pass = passes.mean(axis=axis)
     k = per_pass.shape[0]
     return per_pass.mean(axis=0), per_pass.std(axis=0, ddof=1) / np.sqrt(k)
+
+
+def two_planes(ao_samples: int, ao_distance: float, pixels: int, spp: int | None = None):
+    """A floor and a ceiling one unit above it, both 40 wide, seen from between them by a
+    ``pixels`` x ``pixels`` camera looking at the floor; rendered with ambient occlusion."""
+    plane = {"type": "plane", "size": 40.0}
+    render = {"integrator": "ao", "ao_samples": ao_samples, "ao_distance": ao_distance}
+    if spp is not None:
+        render["spp"] = spp
+    return compile_dict(
+        {
+            "camera": {
+                "position": [0, 0.5, 0],
+                "look_at": [0, 0, 0],
+                "up": [0, 0, -1],
+                "vfov_deg": 10,
+                "width": pixels,
+                "height": pixels,
+            },
+            "render": render,
+            "materials": {"grey": {}},
+            "objects": [
+                {"shape": plane, "material": "grey"},
+                {
+                    "shape": plane,
+                    "material": "grey",
+                    "transform": {"translate": [0, 1, 0], "rotate": [180, 0, 0]},
+                },
+            ],
+        }
+    )

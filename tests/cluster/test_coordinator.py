@@ -253,6 +253,17 @@ def test_every_frame_of_an_animation_comes_in_order_at_any_pipeline_depth(
     assert seen == [0, 1, 2, 3, 4] and submitted == seen
 
 
+def animation_killing_t1_after(coordinator: Coordinator, frame: int) -> list:
+    """Every frame of the graph's animation, with tracer t1 killed by ray.kill (restart
+    allowed) once ``frame`` has arrived."""
+    frames = []
+    for done in coordinator.render_animation():
+        frames.append(done)
+        if done.frame == frame:
+            ray.kill(coordinator.tracer_handle("t1"), no_restart=False)
+    return frames
+
+
 def test_a_killed_tracer_loses_no_frame_of_an_animation(fresh):
     """ray.kill (restart allowed) of one of two tracers during a 32-frame pipelined
     animation: every frame arrives, each equal to render_image of its pose; the tracer is
@@ -263,11 +274,7 @@ def test_a_killed_tracer_loses_no_frame_of_an_animation(fresh):
     graph = SceneGraph(state)
     coordinator = fresh(graph, tracers=2, balancer="none", straggler_floor=30, delays=[0.1, 0.1])
     victim = coordinator.info("t1")
-    frames = []
-    for frame in coordinator.render_animation():
-        frames.append(frame)
-        if frame.frame == 4:
-            ray.kill(coordinator.tracer_handle("t1"), no_restart=False)
+    frames = animation_killing_t1_after(coordinator, 4)
     assert [f.frame for f in frames] == list(range(32))
     for frame in frames:
         assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
@@ -365,11 +372,7 @@ def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh):
     graph = SceneGraph(state)
     coordinator = fresh(graph, tracers=2, straggler_floor=30, delays=[0.03, 0.03])
     coordinator.balancer = always_tail()
-    frames = []
-    for frame in coordinator.render_animation():
-        frames.append(frame)
-        if frame.frame == 4:
-            ray.kill(coordinator.tracer_handle("t1"), no_restart=False)
+    frames = animation_killing_t1_after(coordinator, 4)
     assert [f.frame for f in frames] == list(range(16))
     for frame in frames:
         assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from tests.helpers import CORNELL, compile_dict, mean_and_error, render_passes
+from tests.helpers import CORNELL, compile_dict, mean_and_error, render_passes, two_planes
 from tests.stats import pass_statistics, welch_pixel_test
 from tracer import effects, integrator, surface_integrators
 from tracer.compile import compile_scene
@@ -180,48 +180,17 @@ def test_whitted_is_darker_than_path_in_the_cornell_box(cornell):
     assert whitted < 0.8 * path
 
 
-def two_planes(ao_distance):
-    """A floor and a ceiling one unit above it, both 40 wide, seen from between them."""
-    plane = {"type": "plane", "size": 40.0}
-    return compile_dict(
-        {
-            "camera": {
-                "position": [0, 0.5, 0],
-                "look_at": [0, 0, 0],
-                "up": [0, 0, -1],
-                "vfov_deg": 10,
-                "width": 8,
-                "height": 8,
-            },
-            "render": {
-                "spp": 16,
-                "integrator": "ao",
-                "ao_samples": 8,
-                "ao_distance": ao_distance,
-            },
-            "materials": {"grey": {}},
-            "objects": [
-                {"shape": plane, "material": "grey"},
-                {
-                    "shape": plane,
-                    "material": "grey",
-                    "transform": {"translate": [0, 1, 0], "rotate": [180, 0, 0]},
-                },
-            ],
-        }
-    )
-
-
 def test_ambient_occlusion_between_two_planes():
     """Under a parallel plane at height h, occlusion rays of length L escape when
     cos(theta) < h / L: with cosine-weighted directions, a fraction (h / L)^2."""
     diagonal = math.sqrt(40.0**2 + 1.0 + 40.0**2)
     for length in (2.0, 4.0):
-        scene = two_planes(length / diagonal)
+        scene = two_planes(8, length / diagonal, 8, spp=16)
         mean, se = mean_and_error(render_passes(scene, 8, 16))
         expected = (1.0 / length) ** 2
         assert np.all(np.abs(mean - expected) < 4 * se + 1e-9), (length, mean, se)
-    open_sky = two_planes(0.5 / diagonal)  # rays shorter than the gap never hit the ceiling
+    # rays shorter than the gap never hit the ceiling
+    open_sky = two_planes(8, 0.5 / diagonal, 8, spp=16)
     assert np.all(render_passes(open_sky, 1, 4) == 1.0)
 
 

@@ -10,7 +10,7 @@ reflected or refracted ray escapes to the sky), and two parallel planes for ambi
 import numpy as np
 import pytest
 
-from tests.helpers import CORNELL, compile_dict
+from tests.helpers import CORNELL, compile_dict, two_planes
 from tracer import effects
 from tracer.compile import compile_scene
 from tracer.effects import EffectPlan, effect_plan
@@ -143,38 +143,11 @@ def test_reflected_and_refracted_rays(material, integrator):
     assert np.all(rays == 2)
 
 
-def two_planes(ao_samples: int) -> object:
-    """A floor and a ceiling, the camera between them looking at the floor."""
-    plane = {"type": "plane", "size": 40.0}
-    return compile_dict(
-        {
-            "camera": {
-                "position": [0, 0.5, 0],
-                "look_at": [0, 0, 0],
-                "up": [0, 0, -1],
-                "vfov_deg": 10,
-                "width": 4,
-                "height": 4,
-            },
-            "render": {"integrator": "ao", "ao_samples": ao_samples, "ao_distance": 0.1},
-            "materials": {"grey": {}},
-            "objects": [
-                {"shape": plane, "material": "grey"},
-                {
-                    "shape": plane,
-                    "material": "grey",
-                    "transform": {"translate": [0, 1, 0], "rotate": [180, 0, 0]},
-                },
-            ],
-        }
-    )
-
-
 @pytest.mark.parametrize("ao_samples", [1, 4, 9])
 def test_ambient_occlusion_rays(ao_samples):
     """Each camera sample that hits casts ``ao_samples`` occlusion rays; the debug outputs trace
     the camera ray alone; a camera ray that misses casts nothing more."""
-    scene = two_planes(ao_samples)
+    scene = two_planes(ao_samples, 0.1, 4)
     assert np.all(rays_per_sample(scene) == (1 + ao_samples))
     for output in ("albedo", "normal", "depth"):
         settings = override(scene.render, integrator=output)
