@@ -1032,17 +1032,13 @@ class Coordinator:
             self._observe_tail(job, now)
             return
         reports = []
-        by_id = {s.id: s for s in self._slots}
         for tracer_id, y0, y1 in job.split:
             result = job.primary.get(tracer_id)
             if y1 == y0:
                 reports.append(TracerReport(tracer_id, y0, y1, 0.0, np.zeros(0, np.int64)))
             elif result is not None:
                 reports.append(TracerReport(tracer_id, y0, y1, result.seconds, result.cost))
-            elif by_id[tracer_id].state == "ready":
-                seconds = now - max(job.submitted, by_id[tracer_id].last_done)
-                cost = job.assembler.cost[y0:y1].copy()
-                reports.append(TracerReport(tracer_id, y0, y1, seconds, cost))
+        reports += self._stalled_reports(job, now)
         if reports:
             self.balancer.observe(job.camera.height, reports)
 
@@ -1061,15 +1057,23 @@ class Coordinator:
             )
             for r in job.ranges
         ]
+        reports += self._stalled_reports(job, now)
+        if reports:
+            self.balancer.observe(job.camera.height, reports)
+
+    def _stalled_reports(self, job: FrameJob, now: float) -> list[TracerReport]:
+        """Stragglers of ``job``'s split whose lines a copy delivered, each with the time it
+        had run (a lower bound); a lost tracer reports nothing."""
         by_id = {s.id: s for s in self._slots}
+        reports = []
         for tracer_id, y0, y1 in job.split:
             slot = by_id.get(tracer_id)
             if y1 > y0 and tracer_id not in job.primary and slot and slot.state == "ready":
                 seconds = now - max(job.submitted, slot.last_done)
-                cost = job.assembler.cost[y0:y1].copy()
-                reports.append(TracerReport(tracer_id, y0, y1, seconds, cost))
-        if reports:
-            self.balancer.observe(job.camera.height, reports)
+                reports.append(
+                    TracerReport(tracer_id, y0, y1, seconds, job.assembler.cost[y0:y1].copy())
+                )
+        return reports
 
     def _drain_orphans(self) -> None:
         """Collect late answers of finished frames and discard them (failures still count)."""
