@@ -247,19 +247,6 @@ def window_rule(size: int, limit: float = 1.5) -> Estimator:
     return estimate
 
 
-def max_of_neighbours(image: np.ndarray) -> np.ndarray:
-    """The largest value of each pixel's 8 neighbours, per channel (-inf beyond the edges)."""
-    padded = np.pad(image, ((1, 1), (1, 1), (0, 0)), constant_values=-np.inf)
-    h, w = image.shape[:2]
-    out = np.full_like(image, -np.inf)
-    for dy in range(3):
-        for dx in range(3):
-            if dy == 1 and dx == 1:
-                continue
-            np.maximum(out, padded[dy : dy + h, dx : dx + w], out=out)
-    return out
-
-
 def corroborated(
     fraction: float, top: int | None, limit: float = 1.5, outlier: float = 2.0
 ) -> Estimator:
@@ -271,7 +258,7 @@ def corroborated(
 
     def estimate(stack: np.ndarray, eps: float = ee.REL_EPSILON) -> float | None:
         mean, variance, mu = _readings(stack, eps)
-        lit = (mean > outlier * mu) & (max_of_neighbours(mean) >= fraction * mean)
+        lit = (mean > outlier * mu) & (ee.max_neighbour(mean) >= fraction * mean)
         d = np.where(lit, np.maximum(mu, mean), mu)
         med = variance / (d * d + eps)
         alt = variance / (np.maximum(mu, mean) ** 2 + eps)
