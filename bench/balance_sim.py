@@ -153,8 +153,11 @@ def simulate_calls(
     latency: float,
     gap: float,
     lag: int = 0,
+    claim: float | None = None,
 ) -> dict[str, np.ndarray]:
-    """Every frame of ``cost`` as the coordinator runs it, call by call (:func:`frame_calls`).
+    """Every frame of ``cost`` as the coordinator runs it, call by call (:func:`frame_calls`),
+    or with ``claim`` (seconds per chunk) as tracers sharing one machine run it, the tail in a
+    shared line pool (:func:`frame_pool`).
     Returns per frame: ``idle`` (Table 16's measure with the gaps between a tracer's calls
     counted as idle: every tracer's window runs from its first render to the latest end of
     any), ``span_idle`` (from the first send to the last result: latency included), ``wall``
@@ -163,11 +166,18 @@ def simulate_calls(
     ids = [f"t{i:03d}" for i in range(speeds.size)]
     out = {k: np.empty(frames) for k in ("idle", "span_idle", "wall", "calls")}
     pending: list[list[TracerReport]] = []
+    pooled = claim is not None
     for f in range(frames):
-        plan = balancer.plan(height, ids) if hasattr(balancer, "plan") else None
+        plan = balancer.plan(height, ids, pooled=pooled) if hasattr(balancer, "plan") else None
         heads = plan.heads if plan is not None else balancer.split(height, ids)
         times = speeds / jitter[f]  # this frame's speeds
-        measures, reports = frame_calls(cost[f], times, ids, heads, plan, overhead, latency, gap)
+        if pooled and plan is not None:
+            chunks = plan.take_all()
+            measures, reports = frame_pool(cost[f], times, ids, heads, chunks, latency, claim)
+        else:
+            measures, reports = frame_calls(
+                cost[f], times, ids, heads, plan, overhead, latency, gap
+            )
         for key, value in measures.items():
             out[key][f] = value
         pending.append(reports)
@@ -230,6 +240,51 @@ def frame_calls(
         "span_idle": 100 * float(np.sum(end - busy)) / (count * end) if end else 0.0,
         "wall": end,
         "calls": float(len(reports)),
+    }
+    return measures, reports
+
+
+def frame_pool(
+    line_cost: np.ndarray,
+    speeds: np.ndarray,
+    ids: list[str],
+    heads: list[tuple[int, int]],
+    chunks: list[tuple[int, int]],
+    latency: float,
+    claim: float,
+) -> tuple[dict[str, float], list[TracerReport]]:
+    """One frame with the tail in a shared line pool: every tracer gets one call (``latency``
+    seconds each way), renders its head (``cost / speed``), then claims chunks in order, each
+    ``claim`` seconds plus its render, the tracer free first claiming first, until none is
+    left. A call's fixed cost is the latency alone (one call per tracer, as in the cluster)."""
+    count = speeds.size
+    free = np.full(count, latency)
+    busy = np.zeros(count)
+    reports: list[TracerReport] = []
+
+    def render(i: int, y0: int, y1: int, extra: float) -> None:
+        seconds = line_cost[y0:y1].sum() / speeds[i] + extra
+        free[i] += seconds
+        busy[i] += seconds
+        cost = line_cost[y0:y1].astype(np.int64)
+        reports.append(TracerReport(ids[i], y0, y1, float(seconds), cost))
+
+    for i, (y0, y1) in enumerate(heads):
+        if y1 > y0:
+            render(i, y0, y1, 0.0)
+    ready = [(free[i], i) for i in range(count)]
+    heapq.heapify(ready)
+    for y0, y1 in chunks:
+        _, i = heapq.heappop(ready)
+        render(i, y0, y1, claim)
+        heapq.heappush(ready, (free[i], i))
+    window = float(free.max() - latency)
+    end = float(free.max() + latency)
+    measures = {
+        "idle": 100 * float(np.sum(window - busy)) / (count * window) if window else 0.0,
+        "span_idle": 100 * float(np.sum(end - busy)) / (count * end) if end else 0.0,
+        "wall": end,
+        "calls": float(count),
     }
     return measures, reports
 
@@ -330,6 +385,7 @@ def run_calls(args, factories: dict, jitter_sigma: float, lag: int) -> dict:
                 args.latency_ms * 1e-3,
                 args.call_gap_ms * 1e-3,
                 lag,
+                None if args.pool_claim_ms is None else args.pool_claim_ms * 1e-3,
             )
             entry["balancers"][name] = {
                 "idle": float(out["idle"].mean()),
@@ -632,6 +688,18 @@ def main(argv: list[str] | None = None) -> int:
         "cost-aware-tail), with idle, span idle, wall time and calls per tracer",
     )
     parser.add_argument(
+        "--pool",
+        dest="pool_claim_ms",
+        type=float,
+        nargs="?",
+        const=0.05,
+        default=None,
+        metavar="CLAIM_MS",
+        help="with --calls: the tracers share one machine, so the tail goes to a shared line "
+        "pool claimed at CLAIM_MS per chunk (default %(const)s ms: a file lock, a kernel "
+        "launch and the chunk's result) instead of Ray calls",
+    )
+    parser.add_argument(
         "--tail-sweep",
         action="store_true",
         help="with --calls: the dynamic tail's constants, one changed at a time",
@@ -724,7 +792,9 @@ def main_calls(args, options: dict, machine: dict) -> int:
             all_results[key] = run_calls(args, factories, sigma, lag)
             print_calls(
                 all_results[key],
-                f"{'tail sweep: ' if args.tail_sweep else ''}calls: idle % (gaps count) / span "
+                f"{'tail sweep: ' if args.tail_sweep else ''}"
+                f"{'shared line pool: ' if args.pool_claim_ms is not None else ''}"
+                f"calls: idle % (gaps count) / span "
                 f"idle % (latency counts) / wall ms / calls per tracer, means over "
                 f"{args.frames} frames; {key}",
             )
@@ -733,7 +803,10 @@ def main_calls(args, options: dict, machine: dict) -> int:
         f"outside rendering, {args.overhead_ms:g} ms per call inside, balanced frame "
         f"{args.frame_ms:g} ms; {time.perf_counter() - start:.1f} s[/]"
     )
-    name = args.name or ("balance_tail_sweep" if args.tail_sweep else "balance_tail")
+    pooled = args.pool_claim_ms is not None
+    name = args.name or (
+        "balance_tail_sweep" if args.tail_sweep else "balance_pool" if pooled else "balance_tail"
+    )
     write_results(name, {"options": options, "results": all_results}, machine)
     return 0
 

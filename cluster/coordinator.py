@@ -76,6 +76,8 @@ from cluster.tail import TailPlan
 from tracer import scene_format as fmt
 from tracer.commit_codec import encode_commit, encode_state
 from tracer.scene_model import SceneState
+from worker.line_pool import LinePool
+from worker.line_pool import supported as line_pool_supported
 from worker.replica import KEEP_VERSIONS
 from worker.tracer_actor import MAX_SCENES, LinesResult, OutOfSync, TracerInfo, remote_tracer
 
@@ -152,6 +154,9 @@ class Frame:
     """Idle % over the wall time: ``sum_i (wall - t_i) / (T wall)`` (latency counts too)."""
     calls: int = 0
     """Render calls whose lines were used (one per tracer without a dynamic tail)."""
+    pooled: bool = False
+    """The dynamic tail went to a shared line pool (every ``tail`` range was claimed by a
+    tracer within one of its calls) rather than out in calls of its own."""
     failures: int = 0
     reassigned: int = 0
     duplicates: int = 0
@@ -202,6 +207,8 @@ class _Task:
     duplicated: bool = False
     resent: bool = False
     """Sent again after OutOfSync (a second OutOfSync gets a snapshot)."""
+    owner: int | None = None
+    """The tracer's id in the frame's shared line pool (None: the call takes no chunks)."""
 
 
 @dataclass(eq=False)
@@ -223,9 +230,12 @@ class FrameJob:
     primary: dict[str, LinesResult] = field(default_factory=dict)
     tail: TailPlan | None = None
     """The dynamic tail's lines not handed out yet (``cost-aware-tail``)."""
+    pool: LinePool | None = None
+    """The dynamic tail as a shared line pool, when every tracer shares this machine."""
     arrivals: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     """Per tracer, (arrival time, busy seconds) of each accepted result, in arrival order."""
     result: Frame | None = None
+    calls: int = 0
     failures: int = 0
     reassigned: int = 0
     duplicates: int = 0
@@ -276,6 +286,7 @@ class Coordinator:
         start_timeout: float = START_TIMEOUT,
         stall_timeout: float = STALL_TIMEOUT,
         delays: Sequence[float] | None = None,
+        line_pool: bool = True,
     ) -> None:
         if tracers is not None and tracers < 1:
             raise ValueError(f"tracers must be at least 1, not {tracers}")
@@ -291,6 +302,7 @@ class Coordinator:
         self.max_attempts = max_attempts
         self.start_timeout = start_timeout
         self.stall_timeout = stall_timeout
+        self.line_pool = line_pool and line_pool_supported()
         self.stats = {
             "frames": 0,
             "failures": 0,
@@ -306,8 +318,10 @@ class Coordinator:
         self._buffers: OrderedDict[tuple[str, int, int], Any] = OrderedDict()
         self._orphans: dict = {}
         self._last_done = 0.0
+        self._pools: set[LinePool] = set()
         if not ray.is_initialized():
             connect()
+        self._node = ray.get_runtime_context().get_node_id()
         self._per_node = tracers is None
         self._declined: set[str] = set()
         self._cpus_per_tracer = cpus_per_tracer
@@ -553,6 +567,9 @@ class Coordinator:
                 except RayError:  # pragma: no cover - already gone
                     pass
         self._orphans.clear()
+        for pool in self._pools:
+            pool.unlink()
+        self._pools.clear()
         self._snapshots.clear()
         self._buffers.clear()
 
@@ -650,17 +667,42 @@ class Coordinator:
         ids = [s.id for s in slots]
         plan = getattr(self.balancer, "plan", None)
         if plan is not None:
-            job.tail = plan(camera.height, ids)
+            pooled = self.line_pool and all(s.node == self._node for s in slots)
+            job.tail = plan(camera.height, ids, pooled=pooled)
             ranges = job.tail.heads
+            if pooled and not job.tail.empty:
+                self._open_pool(job)
         else:
             ranges = self.balancer.split(camera.height, ids)
-        for slot, (y0, y1) in zip(slots, ranges, strict=True):
+        for owner, (slot, (y0, y1)) in enumerate(zip(slots, ranges, strict=True)):
             job.split.append((slot.id, y0, y1))
-            if y1 > y0:
+            if job.pool is not None:  # every tracer claims chunks, with or without a head
+                self._submit(job, slot, y0, y1, "split", 1, owner=owner)
+            elif y1 > y0:
                 self._submit(job, slot, y0, y1, "split", 1)
         for slot in slots:  # one chunk queued behind every head
             self._feed(job, slot)
         return job
+
+    def _open_pool(self, job: FrameJob) -> None:
+        """Move ``job``'s whole tail into a shared line pool its tracers claim from."""
+        chunks = job.tail.take_all()
+        job.pool = LinePool.create(chunks)
+        self._pools.add(job.pool)
+        for y0, y1 in chunks:
+            job.assembler.assign(y0, y1)
+
+    def _close_pool(self, job: FrameJob) -> None:
+        if job.pool is not None:
+            job.pool.unlink()
+            self._pools.discard(job.pool)
+
+    def _owed(self, job: FrameJob, task: _Task) -> list[tuple[int, int]]:
+        """The line ranges ``task`` may deliver: its own range and the pool chunks it claimed."""
+        own = [(task.y0, task.y1)] if task.y1 > task.y0 else []
+        if task.owner is None or job.pool is None:
+            return own
+        return own + job.pool.claimed(task.owner)
 
     def _feed(self, job: FrameJob, slot: _Slot) -> None:
         """Send ``slot`` the next chunk of ``job``'s dynamic tail, if any is left."""
@@ -711,6 +753,7 @@ class Coordinator:
         kind: str,
         attempt: int,
         sync: tuple[Any, Any] | None = None,
+        owner: int | None = None,
     ) -> _Task:
         scene = job.graph.key
         have = _held(slot, scene)
@@ -726,13 +769,16 @@ class Coordinator:
             job.sample_start,
             snapshot,
             scene,
+            pool=None if owner is None else (job.pool.path, owner),
         )
         if snapshot is not None:
             _hold(slot, scene, job.version)
         elif have is not None:  # the commits (if any) take it to the version
             _hold(slot, scene, max(have, job.version))
-        job.assembler.assign(y0, y1)
+        if y1 > y0:
+            job.assembler.assign(y0, y1)
         task = job.pending[ref] = _Task(slot, y0, y1, kind, attempt, time.perf_counter())
+        task.owner = owner
         return task
 
     # Collecting ------------------------------------------------------------------------------
@@ -862,38 +908,45 @@ class Coordinator:
                 raise ClusterError(
                     f"tracer {slot.id} cannot reach version {job.version}: {out.reason}"
                 )
-            if not job.assembler.missing(task.y0, task.y1):
+            if task.owner is None and not job.assembler.missing(task.y0, task.y1):
                 return
             if out.have is None or out.have >= job.version or task.resent:
                 # it cannot get there by commits
                 sync = ([], self._snapshot_ref(job.graph.key, job.state))
             else:
                 sync = self._sync_for(out.have, job.graph, job.state)
-            again = self._submit(job, slot, task.y0, task.y1, task.kind, task.attempt + 1, sync)
+            again = self._submit(
+                job, slot, task.y0, task.y1, task.kind, task.attempt + 1, sync, task.owner
+            )
             again.resent = True
             return
         slot.pid, slot.node, slot.incarnation = out.pid, out.node, out.incarnation
         # The next chunk queues while this tracer works on its last (after an OutOfSync answer
         # the resend above keeps it busy, and the chunk waits until the tracer is in sync).
         self._feed(job, slot)
-        if job.assembler.accept(out) <= 0:  # refused (-1), or lines another copy delivered
-            return
-        job.ranges.append(
-            RangeReport(
-                slot.id,
-                out.y0,
-                out.y1,
-                out.seconds,
-                out.apply_seconds,
-                task.kind,
-                out.pid,
-                out.node,
+        busy = 0.0
+        for part, kind in [(out, task.kind), *((chunk, "tail") for chunk in out.more)]:
+            if part.y1 == part.y0 or job.assembler.accept(part) <= 0:
+                continue  # no lines; refused (-1), or lines another copy delivered
+            job.ranges.append(
+                RangeReport(
+                    slot.id,
+                    part.y0,
+                    part.y1,
+                    part.seconds,
+                    part.apply_seconds,
+                    kind,
+                    part.pid,
+                    part.node,
+                )
             )
-        )
-        job.busy[slot.id] = job.busy.get(slot.id, 0.0) + out.seconds + out.apply_seconds
-        job.arrivals.setdefault(slot.id, []).append((now, out.seconds + out.apply_seconds))
-        if task.kind == "split":
-            job.primary[slot.id] = out
+            busy += part.seconds + part.apply_seconds
+            if kind == "split":
+                job.primary[slot.id] = part
+        if busy > 0.0:
+            job.calls += 1
+            job.busy[slot.id] = job.busy.get(slot.id, 0.0) + busy
+            job.arrivals.setdefault(slot.id, []).append((now, busy))
 
     def _tracer_failed(self, slot: _Slot, error: Exception) -> None:
         """A call failed because the tracer's process died: Ray restarts it; queue a snapshot so
@@ -913,9 +966,16 @@ class Coordinator:
         """Hand the failed task's unfinished lines, not owed by another call, to others."""
         owed = np.zeros(job.assembler.height, bool)
         for other in job.pending.values():
-            owed[other.y0 : other.y1] = True
-        todo = ~job.assembler.done[task.y0 : task.y1] & ~owed[task.y0 : task.y1]
-        for y0, y1 in runs(todo, offset=task.y0):
+            for y0, y1 in self._owed(job, other):
+                owed[y0:y1] = True
+        if job.pool is not None and any(t.owner is not None for t in job.pending.values()):
+            for y0, y1 in job.pool.unclaimed():  # a pooled call still running will claim them
+                owed[y0:y1] = True
+        mine = np.zeros(job.assembler.height, bool)
+        for y0, y1 in self._owed(job, task):
+            mine[y0:y1] = True
+        todo = mine & ~job.assembler.done & ~owed
+        for y0, y1 in runs(todo):
             if task.attempt >= self.max_attempts:
                 raise ClusterError(
                     f"frame {job.frame}: lines [{y0}, {y1}) failed {task.attempt} times; last: "
@@ -966,12 +1026,13 @@ class Coordinator:
                     stuck.add(tracer)
                 continue
             started = max(task.submitted, task.slot.last_done)
-            predicted = apply + per_line * (task.y1 - task.y0)
+            lines = self._owed(job, task)
+            predicted = apply + per_line * sum(y1 - y0 for y0, y1 in lines)
             late = now - started > self.straggler_factor * predicted + self.straggler_floor
             if not (queued or late):  # a call queued behind a straggler waits as long as it
                 continue
             stuck.add(tracer)
-            missing = job.assembler.missing(task.y0, task.y1)
+            missing = [run for y0, y1 in lines for run in job.assembler.missing(y0, y1)]
             if not missing:
                 continue
             target = idle.pop(0)
@@ -990,6 +1051,7 @@ class Coordinator:
         for ref, task in job.pending.items():  # losing copies and the like: discard on arrival
             self._orphans[ref] = task
         job.pending.clear()
+        self._close_pool(job)
         start = max(job.submitted, self._last_done)
         self._last_done = now
         busy = job.busy
@@ -1010,7 +1072,8 @@ class Coordinator:
             wall_seconds=wall,
             overhead_seconds=max(0.0, wall - slowest),
             span_idle_percent=100 * sum(span) / (len(span) * wall) if span and wall > 0 else 0.0,
-            calls=len(job.ranges),
+            calls=job.calls,
+            pooled=job.pool is not None,
             failures=job.failures,
             reassigned=job.reassigned,
             duplicates=job.duplicates,

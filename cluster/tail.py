@@ -92,6 +92,14 @@ class TailPlan:
             segment[0] = end
         return a, end
 
+    def take_all(self) -> list[LineRange]:
+        """Hand the whole tail out at once, in chunks sized for a tracer of mean speed: the
+        chunks of a shared line pool, which cannot know who claims next."""
+        chunks = []
+        while (chunk := self.next_chunk("")) is not None:
+            chunks.append(chunk)
+        return chunks
+
 
 def cut_head(prefix: np.ndarray, a: int, b: int, fraction: float) -> tuple[LineRange, LineRange]:
     """(head, rest) of range [a, b): the head holds at most ``fraction`` of its predicted cost,

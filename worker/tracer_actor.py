@@ -24,7 +24,7 @@ import os
 import time
 import uuid
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,6 +35,7 @@ from tracer.errors import SceneError
 from tracer.query import SceneHits
 from tracer.render import render_lines
 from tracer.threads import default_threads
+from worker.line_pool import LinePool
 from worker.replica import SceneReplica
 
 DEFAULT_SCENE = "default"
@@ -69,6 +70,9 @@ class LinesResult:
     """The effect plan the lines were rendered with (``tracer.effects.EffectPlan.to_json``)."""
     rays: np.ndarray | None = None
     """int64 (y1 - y0,): rays traced per line (camera, continuation, shadow and occlusion)."""
+    more: list["LinesResult"] = field(default_factory=list)
+    """Chunks of the frame's shared line pool this call rendered after its own range, in the
+    order claimed (:mod:`worker.line_pool`)."""
 
 
 @dataclass(frozen=True)
@@ -197,12 +201,15 @@ class Tracer:
         sample_start: int = 0,
         snapshot: bytes | None = None,
         scene: str = DEFAULT_SCENE,
+        pool: tuple[str, int] | None = None,
     ) -> "LinesResult | OutOfSync":
         """Render lines [y0, y1) of ``frame`` exactly at ``version`` of ``scene``.
 
         First applies ``commits`` (encoded, in version order; ones already applied are
         skipped), or starts from ``snapshot`` when given and needed. ``camera`` and ``settings``
-        default to the scene's at ``version``.
+        default to the scene's at ``version``. ``pool``: (path, owner id) of the frame's
+        shared line pool; after its own lines the tracer claims and renders the pool's chunks
+        until none is left (``LinesResult.more``). [y0, y1) may then be empty.
         """
         start = time.perf_counter()
         problem = self._reach(scene, version, commits, snapshot)
@@ -214,33 +221,52 @@ class Tracer:
             time.sleep(self.delay)
         settings = settings or compiled.render
         plan = effect_plan(compiled, settings)
-        lines = render_lines(
-            compiled,
-            y0,
-            y1,
-            camera,
-            settings,
-            frame,
-            sample_start,
-            threads=self.threads,
-            plan=plan,
-        )
-        return LinesResult(
-            tracer=self.id,
-            frame=frame,
-            version=version,
-            y0=y0,
-            y1=y1,
-            rgb=lines.rgb,
-            cost=lines.cost,
-            seconds=time.perf_counter() - applied,
-            apply_seconds=applied - start,
-            pid=self.pid,
-            node=self.node,
-            incarnation=self.incarnation,
-            effects=plan.to_json(),
-            rays=lines.rays,
-        )
+
+        def lines(a: int, b: int, since: float, apply_seconds: float = 0.0) -> LinesResult:
+            if b > a:
+                out = render_lines(
+                    compiled, a, b, camera, settings, frame, sample_start, self.threads, plan
+                )
+                rgb, cost, rays = out.rgb, out.cost, out.rays
+            else:  # a tracer of a pooled frame with no range of its own
+                width = (camera or compiled.camera).width
+                rgb, cost, rays = np.zeros((0, width, 3), np.float32), np.zeros(0, np.int64), None
+            return LinesResult(
+                tracer=self.id,
+                frame=frame,
+                version=version,
+                y0=a,
+                y1=b,
+                rgb=rgb,
+                cost=cost,
+                seconds=time.perf_counter() - since,
+                apply_seconds=apply_seconds,
+                pid=self.pid,
+                node=self.node,
+                incarnation=self.incarnation,
+                effects=plan.to_json(),
+                rays=rays,
+            )
+
+        result = lines(y0, y1, applied, applied - start)
+        if pool is not None:
+            result.more = self._drain(pool, lines)
+        return result
+
+    @staticmethod
+    def _drain(pool: tuple[str, int], lines) -> list[LinesResult]:
+        """Claim and render chunks of the shared pool at ``path`` until none is left."""
+        path, owner = pool
+        since = time.perf_counter()
+        shared = LinePool.open(path)
+        if shared is None:  # the frame is finished (this call was a late copy)
+            return []
+        chunks = []
+        with shared:
+            while (chunk := shared.claim(owner)) is not None:
+                chunks.append(lines(*chunk, since))  # its seconds include the claim
+                since = time.perf_counter()
+        return chunks
 
     def warm_up(self) -> dict:
         """Render one pixel of the held scene at 1 spp, so the render kernel is loaded (from

@@ -83,6 +83,7 @@ def test_make_balancer_names_the_choices():
         "robin-hood",
         "perfect",
         "perfect-smooth",
+        "cost-aware-static",
         "cost-aware",
         "cost-aware-tail",
     }

@@ -343,34 +343,51 @@ def always_tail() -> CostAwareTail:
     return CostAwareTail(fraction=0.5, min_chunk=0.0, min_seconds=0.0, min_lines=1)
 
 
+TRANSPORTS = [True, False]
+TRANSPORT_IDS = ["pool", "calls"]
+
+
+@pytest.mark.parametrize("pooled", TRANSPORTS, ids=TRANSPORT_IDS)
 @pytest.mark.parametrize("tracers", [2, 3])
-def test_frames_with_a_dynamic_tail_equal_render_image(shared, tracers):
-    """Heads and chunks from 2 and 3 tracers: frames at several versions and frame numbers
-    equal render_image bit for bit, chunks included."""
+def test_frames_with_a_dynamic_tail_equal_render_image(shared, tracers, pooled):
+    """Heads and chunks from 2 and 3 tracers, the tail claimed from a shared line pool or
+    handed out in calls of its own: frames at several versions and frame numbers equal
+    render_image bit for bit, chunks included."""
     coordinator = shared(tracers)
     coordinator.balancer = always_tail()
+    coordinator.line_pool = pooled
     graph = coordinator.graph
-    for number, edit, sample_start in [(0, None, 0), (1, MOVE, 0), (7, CAMERA_MOVE, 3)]:
-        if edit is not None:
-            graph.commit([edit])
-        frame = coordinator.render_frame(number, sample_start=sample_start)
-        assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
-        assert_covers(frame, 24)
-        kinds = [r.kind for r in frame.ranges]
-        heads = sum(y1 > y0 for _, y0, y1 in frame.split)  # a slow tracer may get none
-        assert kinds.count("split") == heads and kinds.count("tail") >= tracers, kinds
-        assert frame.calls == len(frame.ranges) > tracers
-    coordinator.use_balancer("cost-aware")
+    try:
+        for number, edit, sample_start in [(0, None, 0), (1, MOVE, 0), (7, CAMERA_MOVE, 3)]:
+            if edit is not None:
+                graph.commit([edit])
+            frame = coordinator.render_frame(number, sample_start=sample_start)
+            assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
+            assert_covers(frame, 24)
+            assert frame.pooled == pooled
+            kinds = [r.kind for r in frame.ranges]
+            heads = sum(y1 > y0 for _, y0, y1 in frame.split)  # a slow tracer may get none
+            assert kinds.count("split") == heads, kinds
+            if pooled:  # one call per tracer; whoever is free claims the chunks
+                assert kinds.count("tail") >= 2 and frame.calls <= tracers, kinds
+            else:
+                assert kinds.count("tail") >= tracers, kinds
+                assert frame.calls == len(frame.ranges) > tracers
+    finally:
+        coordinator.use_balancer("cost-aware")
+        coordinator.line_pool = True
 
 
-def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh):
+@pytest.mark.parametrize("pooled", TRANSPORTS, ids=TRANSPORT_IDS)
+def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh, pooled):
     """A dynamic tail with two tracers through a pipelined 16-frame animation: the frames use
-    chunks of the tail (more calls than tracers), a tracer killed mid-job loses no frame, every
-    frame equals render_image of its pose, and the restarted tracer takes work again."""
+    chunks of the tail (from the pool, or in more calls than tracers), a tracer killed mid-job
+    loses no frame, every frame equals render_image of its pose, and the restarted tracer
+    takes work again."""
     state = animated(16)
     expected = animation_references(state, range(16))
     graph = SceneGraph(state)
-    coordinator = fresh(graph, tracers=2, straggler_floor=30, delays=[0.03, 0.03])
+    coordinator = fresh(graph, tracers=2, straggler_floor=30, delays=[0.03, 0.03], line_pool=pooled)
     coordinator.balancer = always_tail()
     frames = animation_killing_t1_after(coordinator, 4)
     assert [f.frame for f in frames] == list(range(16))
@@ -378,7 +395,11 @@ def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh):
         assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
         assert_covers(frame, frame.rgb.shape[0])
     assert coordinator.stats["failures"] == 1
-    assert any(f.calls > 2 and "tail" in {r.kind for r in f.ranges} for f in frames[:4])
+    calls = 0 if pooled else 2
+    assert any(
+        f.calls > calls and f.pooled == pooled and "tail" in {r.kind for r in f.ranges}
+        for f in frames[:4]
+    )
     assert all(0.0 <= f.idle_percent < 100.0 and 0.0 <= f.span_idle_percent < 100 for f in frames)
     wait_ready(coordinator, "t1")
     extra = coordinator.render_frame(15)
@@ -386,11 +407,12 @@ def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh):
     assert "t1" in {r.tracer for r in extra.ranges}
 
 
-def test_the_dynamic_tail_duplicates_a_straggler(fresh):
+@pytest.mark.parametrize("pooled", TRANSPORTS, ids=TRANSPORT_IDS)
+def test_the_dynamic_tail_duplicates_a_straggler(fresh, pooled):
     """With a dynamic tail, a stalled tracer's head and queued chunk are copied to the idle
     one once the tail is used up; the frame completes long before the stall ends."""
     graph = SceneGraph(studio())
-    coordinator = fresh(graph, tracers=2, straggler_floor=0.3)
+    coordinator = fresh(graph, tracers=2, straggler_floor=0.3, line_pool=pooled)
     coordinator.balancer = always_tail()
     ray.get(coordinator.tracer_handle("t1").set_delay.remote(2.5))
     start = time.perf_counter()
@@ -402,6 +424,52 @@ def test_the_dynamic_tail_duplicates_a_straggler(fresh):
     assert {r.kind for r in frame.ranges} >= {"split", "tail", "duplicate"}
     fast, slow = coordinator.balancer.speeds(["t0", "t1"])  # the stall is learnt (lower bound)
     assert slow < 0.5 * fast, (fast, slow)
+
+
+def claimed_by_t1(job, chunks: int = 2) -> list[tuple[int, int]]:
+    """Claim ``chunks`` of ``job``'s line pool as t1 (owner 1) would, from this process."""
+    assert job.pool is not None
+    return [job.pool.claim(1) for _ in range(chunks)]
+
+
+def test_pool_chunks_a_lost_tracer_held_are_reassigned(fresh):
+    """A tracer killed after claiming chunks of the pool (claimed here in its name while its
+    call sleeps): its range and those chunks go to the survivor, and the frame completes
+    without waiting for the restart."""
+    graph = SceneGraph(studio())
+    # t0 starts late enough for this process to claim first; t1 never starts.
+    coordinator = fresh(graph, tracers=2, straggler_floor=30, delays=[0.5, 20.0])
+    coordinator.balancer = always_tail()
+    victim = coordinator.info("t1")
+    job = coordinator.submit_frame(4)
+    held = claimed_by_t1(job)
+    time.sleep(0.3)
+    os.kill(victim.pid, signal.SIGKILL)
+    frame = coordinator.wait_frame(job)
+    assert frame.pooled and np.array_equal(frame.rgb, reference(graph.state, 4))
+    assert frame.failures == 1 and frame.wall_seconds < 15.0
+    assert {r.tracer for r in frame.ranges} == {"t0"}
+    reassigned = [(r.y0, r.y1) for r in frame.ranges if r.kind == "reassigned"]
+    for y0, y1 in held:  # every held line came back as a reassigned range
+        assert all(any(a <= y < b for a, b in reassigned) for y in range(y0, y1)), held
+
+
+def test_pool_chunks_a_straggler_holds_are_duplicated(fresh):
+    """A stalled tracer that holds chunks of the pool: its range and the chunks are copied to
+    the idle tracer once the pool is empty; the frame completes long before the stall ends."""
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=2, straggler_floor=0.3, delays=[0.2, 2.5])
+    coordinator.balancer = always_tail()
+    start = time.perf_counter()
+    job = coordinator.submit_frame(0)
+    held = claimed_by_t1(job)
+    frame = coordinator.wait_frame(job)
+    assert time.perf_counter() - start < 2.0
+    assert frame.pooled and np.array_equal(frame.rgb, reference(graph.state, 0))
+    assert frame.duplicates == 1 and frame.failures == 0
+    copies = [(r.y0, r.y1) for r in frame.ranges if r.kind == "duplicate"]
+    for y0, y1 in held:
+        assert all(any(a <= y < b for a, b in copies) for y in range(y0, y1)), held
 
 
 def test_gap_idle_percent_counts_waits_between_ranges():

@@ -206,7 +206,7 @@ def test_the_tail_absorbs_speed_changes_a_static_split_cannot_foresee():
     cost = sky_and_ground(400)
     rng = np.random.default_rng(3)
     jumps = np.exp(0.08 * rng.normal(size=(40, 2)))
-    static, tail = make_balancer("cost-aware"), make_balancer("cost-aware-tail")
+    static, tail = make_balancer("cost-aware-static"), make_balancer("cost-aware-tail")
     idle_static, idle_tail = [], []
     for j in jumps:
         speeds = np.array([1.0, 1.7]) * j

@@ -16,6 +16,7 @@ from tests.worker.test_replica import studio
 from tracer.commit_codec import encode_commit, encode_state
 from tracer.compile import compile_scene
 from tracer.render import render_image
+from worker.line_pool import LinePool
 from worker.tracer_actor import MAX_SCENES, LinesResult, OutOfSync, Tracer, remote_tracer
 
 MOVE = {"op": "set_transform", "node": "box-a", "transform": {"translate": [0.5, 1.2, 0.3]}}
@@ -57,6 +58,36 @@ def test_tracer_renders_like_render_image():
     one.sync_snapshot(encode_state(state))
     split = [(0, 7), (7, 8), (8, 24)]
     assert np.array_equal(rendered(one, 0, frame=5, ranges=split, sample_start=3), expected)
+
+
+def test_a_pooled_call_renders_its_range_then_every_chunk_it_claims():
+    """With a shared line pool the call renders its own range, then claims chunks until none
+    is left; each chunk's lines are render_image's and the pool records who took them. A call
+    with no range of its own only claims; a pool that is gone gives no chunks."""
+    state = studio()
+    tracer = Tracer("t", cpus=1)
+    tracer.sync_snapshot(encode_state(state))
+    expected = reference(state, frame=2)
+    pool = LinePool.create([(20, 24), (0, 3), (8, 9)])
+    try:
+        out = tracer.render(2, 0, [], None, None, 3, 8, pool=(pool.path, 5))
+        assert pool.claimed(5) == [(20, 24), (0, 3), (8, 9)]
+    finally:
+        pool.unlink()
+    assert (out.y0, out.y1) == (3, 8) and np.array_equal(out.rgb, expected[3:8])
+    assert [(c.y0, c.y1) for c in out.more] == [(20, 24), (0, 3), (8, 9)]
+    for chunk in out.more:
+        assert np.array_equal(chunk.rgb, expected[chunk.y0 : chunk.y1])
+        assert chunk.cost.shape == chunk.rays.shape == (chunk.y1 - chunk.y0,)
+        assert chunk.seconds > 0.0 and chunk.apply_seconds == 0.0
+    with LinePool.create([(9, 12)]) as second:
+        only = tracer.render(2, 0, [], None, None, 4, 4, pool=(second.path, 0))
+        second.unlink()
+    assert only.rgb.shape == (0, state.camera.width, 3) and only.cost.shape == (0,)
+    assert [(c.y0, c.y1) for c in only.more] == [(9, 12)]
+    assert np.array_equal(only.more[0].rgb, expected[9:12])
+    late = tracer.render(2, 0, [], None, None, 0, 1, pool=(second.path, 0))
+    assert late.more == [] and np.array_equal(late.rgb, expected[0:1])
 
 
 def test_commits_reach_exactly_the_version_asked_for():

@@ -1,0 +1,139 @@
+"""A frame's dynamic tail shared by the tracers of one machine: chunks of lines in shared memory.
+
+The coordinator writes the tail's chunks (``[y0, y1)`` in the order they are to be handed
+out) into a small file in ``/dev/shm`` (the temp directory where there is none); each tracer
+whose render call names the pool renders its own range, then claims chunks one at a time until
+none is left, and returns them with its range. A claim is a few microseconds (an exclusive
+``flock`` around a counter in the mapped file) instead of the millisecond a Ray call costs, so
+chunks can be small and no tracer waits for the coordinator within a frame. Every claim
+records its owner, so the coordinator can tell which lines a lost or stalled tracer held.
+
+Layout (int64): ``[next, count, (y0, y1, owner) x count]``; ``owner`` is -1 until claimed.
+Only tracers on the coordinator's machine can open the file; elsewhere the coordinator hands
+the tail out through Ray calls (``cluster.coordinator``).
+"""
+
+import mmap
+import os
+import tempfile
+import uuid
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX
+    fcntl = None
+
+HEADER = 2
+FIELDS = 3
+
+
+def supported() -> bool:
+    """Whether this platform has the file locks the pool needs (POSIX)."""
+    return fcntl is not None
+
+
+def _directory() -> Path:
+    shm = Path("/dev/shm")
+    return shm if shm.is_dir() and os.access(shm, os.W_OK) else Path(tempfile.gettempdir())
+
+
+class LinePool:
+    """Chunks of lines claimed by several processes; see the module docstring."""
+
+    def __init__(self, path: str, fd: int, buffer: mmap.mmap) -> None:
+        self.path = path
+        self._fd = fd
+        self._buffer = buffer
+        self._table = np.frombuffer(buffer, np.int64)
+
+    @classmethod
+    def create(cls, chunks: Sequence[tuple[int, int]], prefix: str = "tilerender") -> "LinePool":
+        """A new pool holding ``chunks`` in hand-out order."""
+        if not supported():  # pragma: no cover - not POSIX
+            raise OSError("line pools need POSIX file locks")
+        table = np.full(HEADER + FIELDS * len(chunks), -1, np.int64)
+        table[0], table[1] = 0, len(chunks)
+        for k, (y0, y1) in enumerate(chunks):
+            if not 0 <= y0 < y1:
+                raise ValueError(f"chunk [{y0}, {y1}) is empty or negative")
+            table[HEADER + FIELDS * k : HEADER + FIELDS * k + 2] = (y0, y1)
+        path = str(_directory() / f"{prefix}-pool-{uuid.uuid4().hex}")
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        try:
+            os.write(fd, table.tobytes())
+            return cls(path, fd, mmap.mmap(fd, table.nbytes))
+        except BaseException:
+            os.close(fd)
+            os.unlink(path)
+            raise
+
+    @classmethod
+    def open(cls, path: str) -> "LinePool | None":
+        """The pool at ``path``, or None when it is gone (its frame is finished)."""
+        try:
+            fd = os.open(path, os.O_RDWR)
+        except FileNotFoundError:
+            return None
+        try:
+            return cls(path, fd, mmap.mmap(fd, os.fstat(fd).st_size))
+        except BaseException:
+            os.close(fd)
+            raise
+
+    def __len__(self) -> int:
+        return int(self._table[1])
+
+    def chunk(self, k: int) -> tuple[int, int, int]:
+        """Chunk ``k`` as (y0, y1, owner); owner -1: not claimed."""
+        y0, y1, owner = self._table[HEADER + FIELDS * k : HEADER + FIELDS * (k + 1)]
+        return int(y0), int(y1), int(owner)
+
+    def claim(self, owner: int) -> tuple[int, int] | None:
+        """Take the next chunk for ``owner`` (a non-negative id); None when all are taken."""
+        fcntl.flock(self._fd, fcntl.LOCK_EX)
+        try:
+            k = int(self._table[0])
+            if k >= self._table[1]:
+                return None
+            self._table[0] = k + 1
+            self._table[HEADER + FIELDS * k + 2] = owner
+        finally:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+        y0, y1, _ = self.chunk(k)
+        return y0, y1
+
+    def claimed(self, owner: int | None = None) -> list[tuple[int, int]]:
+        """Chunks claimed so far (by ``owner`` only, when given)."""
+        chunks = (self.chunk(k) for k in range(len(self)))
+        return [(y0, y1) for y0, y1, who in chunks if who >= 0 and (owner is None or who == owner)]
+
+    def unclaimed(self) -> list[tuple[int, int]]:
+        """Chunks nobody has claimed yet."""
+        return [(y0, y1) for y0, y1, who in map(self.chunk, range(len(self))) if who < 0]
+
+    def close(self) -> None:
+        """Unmap and close (the file stays for the other processes)."""
+        if self._fd < 0:
+            return
+        del self._table
+        self._buffer.close()
+        os.close(self._fd)
+        self._fd = -1
+
+    def unlink(self) -> None:
+        """Close and remove the file: tracers that open it later find no pool."""
+        self.close()
+        try:
+            os.unlink(self.path)
+        except FileNotFoundError:
+            pass
+
+    def __enter__(self) -> "LinePool":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
