@@ -603,9 +603,10 @@ class CostAwareTail(CostAware):
     still applies; ``min_lines=1`` lifts it).
 
     A ``pooled`` plan (every tracer shares the coordinator's machine, so the tail goes to a
-    shared line pool: :mod:`worker.line_pool`) prices a chunk at ``POOL_CALL_SECONDS`` instead
-    of a Ray call, keeps at least ``POOL_MIN_TAIL``, and cuts chunks down to
-    ``POOL_MIN_SECONDS`` and ``POOL_MIN_LINES`` lines per tracer. ``call_tail=False`` gives
+    shared line pool: :mod:`worker.line_pool`) always keeps a tail of at least
+    ``POOL_MIN_TAIL`` (a claim costs microseconds, not a Ray call, so no error is too small to
+    be worth it), and cuts chunks down to ``POOL_MIN_SECONDS`` and ``POOL_MIN_LINES`` lines per
+    tracer. ``call_tail=False`` gives
     plans without a pool no tail at all (``cost-aware``).
 
     ``observe`` takes any number of reports per tracer (heads and chunks): the profile from
@@ -640,9 +641,6 @@ class CostAwareTail(CostAware):
     is a large part of a tracer's frame, a chunk queued on a slow tracer at the end costs
     more than the tail saves (simulator: 8-128 tracers on 96 lines, 128 on 480)."""
     HEADS_KEPT = 64
-    POOL_CALL_SECONDS = 0.0002
-    """What one more chunk costs a tracer that claims it from a shared line pool
-    (:mod:`worker.line_pool`: a file lock and a kernel launch, no Ray call)."""
     POOL_MIN_SECONDS = 0.0002
     """Least pooled chunk in predicted seconds: the last chunk is what the other tracer may
     wait for (0.2 ms against 0.5 and 1 ms: 1.06, 1.17 and 1.44% idle, 640x480, two tracers)."""
@@ -686,7 +684,7 @@ class CostAwareTail(CostAware):
     def head_fraction(self, frame_seconds: float = math.inf, pooled: bool = False) -> float:
         """Share of each tracer's predicted cost sent as its head, for a frame predicted to
         take ``frame_seconds``: everything when the heads' error is too small to pay for the
-        calls a tail costs (``pooled``: the chunks a shared line pool costs)."""
+        calls a tail costs (never for a ``pooled`` tail)."""
         if self.fraction is not None:
             return self.fraction
         least = self.POOL_MIN_TAIL if pooled else self.MIN_TAIL
@@ -694,8 +692,8 @@ class CostAwareTail(CostAware):
             known = self._predictors[0].level is not None and self._work
             return 1.0 - (least if known else self.FIRST_TAIL)
         spread = math.sqrt(self._error2)
-        call = self.POOL_CALL_SECONDS if pooled else self.call_seconds
-        if math.isfinite(frame_seconds) and spread * frame_seconds < self.calls_worth * call:
+        worth = self.calls_worth * self.call_seconds
+        if not pooled and math.isfinite(frame_seconds) and spread * frame_seconds < worth:
             return 1.0
         return 1.0 - min(max(self.z * spread, least), self.MAX_TAIL)
 

@@ -22,6 +22,14 @@ results arrives, so a call is always queued behind the one it renders; the balan
 observes every accepted range. ``Frame.idle_percent`` counts a tracer's waits between its
 ranges as idle (:func:`gap_idle_percent`; Table 16's measure with one range per tracer).
 
+When every tracer of a frame runs on the coordinator's own Ray node, the tail does not go
+out in calls: step 1 writes all of it into a shared line pool (:mod:`worker.line_pool`) and
+every tracer's one call names the pool, so a tracer renders its head and then claims chunks
+itself, microseconds apart, until none is left; its result carries the chunks
+(``LinesResult.more``). Every claim records its owner, so the lines a lost or stalled tracer
+held are known. ``cost-aware`` (the default) keeps a tail only in that case, ``cost-aware-tail``
+also hands one out in calls across machines.
+
 ``render_animation`` pipelines frames (Bikker's double buffering, 7.3.4): frame N+1's pose is
 committed to the graph and its render calls are submitted while frame N renders, so each
 tracer applies N+1's commits and starts N+1 as soon as it finishes N (Ray runs an actor's calls
@@ -33,7 +41,8 @@ submitted once N's tail is all handed out, so its calls queue behind N's last ch
 Failures:
 
 - **Lost tracer.** A call that fails because its actor died (``RayActorError``) hands the
-  range's unfinished lines, split evenly, to the surviving ready tracers (preferring ones with
+  range's unfinished lines (and the pool chunks it had claimed), split evenly, to the
+  surviving ready tracers (preferring ones with
   nothing left to do in that frame). Ray restarts the actor (``max_restarts=-1``); the
   coordinator immediately queues a ``sync_snapshot`` call on it, which runs when the new process
   is up. When it answers, the tracer is ready again and gets work from the next scheduled frame.
