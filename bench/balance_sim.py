@@ -724,6 +724,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--frames and --tracers must be positive, --jitter and --overhead-ms >= 0")
     if min(args.lag) < 0:
         parser.error("--lag must be >= 0")
+    if args.calls and args.sweep:
+        parser.error("--sweep runs the split-level model; with --calls use --tail-sweep")
+    if not args.calls and (args.tail_sweep or args.pool_claim_ms is not None):
+        parser.error("--tail-sweep and --pool belong to the call-level model: add --calls")
+    if args.pool_claim_ms is not None and args.pool_claim_ms < 0:
+        parser.error("--pool's claim time must be >= 0 ms")
     if args.name is not None and not args.name.replace("_", "").replace("-", "").isalnum():
         parser.error("--name is a file name without a directory: letters, digits, - and _")
     if not 0 < args.speed_range[0] <= args.speed_range[1]:

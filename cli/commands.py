@@ -109,13 +109,13 @@ def render_to_file(
         transient=True,
     ) as progress:
         task = progress.add_task(label, total=camera.height)
-        image, _ = render_image(
-            scene,
-            camera,
-            settings,
-            threads=threads,
-            on_lines=lambda part: progress.advance(task, part.y1 - part.y0),
-        )
+        rays = []
+
+        def on_lines(part) -> None:
+            progress.advance(task, part.y1 - part.y0)
+            rays.append(int(part.rays.sum()))
+
+        image, _ = render_image(scene, camera, settings, threads=threads, on_lines=on_lines)
     seconds = time.perf_counter() - start
     metadata = {
         "renderer": "tilerender",
@@ -124,6 +124,7 @@ def render_to_file(
         "render": settings.model_dump(),
         "effect_plan": effect_plan(scene, settings).to_json(),
         "seconds": round(seconds, 3),
+        "rays": sum(rays),
         "executor": "in-process",
     }
     for path in outputs:
@@ -133,7 +134,7 @@ def render_to_file(
         names = ", ".join(str(p) for p in outputs)
         stderr.print(
             f"wrote {names}: {camera.width}x{camera.height}, {settings.spp} spp, "
-            f"{seconds:.2f} s, {rate:.2f} M samples/s"
+            f"{seconds:.2f} s, {rate:.2f} M samples/s, {sum(rays) / seconds / 1e6:.2f} M rays/s"
         )
     return seconds
 
@@ -300,6 +301,7 @@ def frame_metadata(done, args: argparse.Namespace, tracers: int) -> dict:
         "render": done.settings.model_dump(),
         "effect_plan": done.effects,
         "seconds": round(done.wall_seconds, 3),
+        "rays": int(done.rays.sum()) if done.rays is not None else None,
         "frame": done.frame,
         "scene_version": done.version,
         "tracers": tracers,
@@ -319,6 +321,17 @@ def _progress(quiet: bool) -> Progress:
         disable=quiet,
         transient=True,
     )
+
+
+def progressive_frame_metadata(done, args: argparse.Namespace, progress) -> dict:
+    """A progressive frame's metadata: its last wave's, with the spp and seconds of all waves
+    (rays are counted per wave only, so none are given)."""
+    metadata = frame_metadata(done, args, len(done.split))
+    metadata["render"]["spp"] = progress.spp
+    metadata["seconds"] = round(progress.elapsed, 3)
+    metadata["rays"] = None
+    metadata["progressive"] = progressive_metadata(progress)
+    return metadata
 
 
 def progressive_metadata(progress) -> dict:
@@ -383,11 +396,7 @@ def render_still(coordinator, output: Path, args: argparse.Namespace) -> None:
         progress, done = render_progressive_frame(
             coordinator, goal, 0, Path(args.scene).name, args.quiet
         )
-        metadata = frame_metadata(done, args, len(done.split))
-        metadata["render"]["spp"] = progress.spp
-        metadata["seconds"] = round(progress.elapsed, 3)
-        metadata["progressive"] = progressive_metadata(progress)
-        write_image(output, progress.image, metadata)
+        write_image(output, progress.image, progressive_frame_metadata(done, args, progress))
         if not args.quiet:
             camera = done.camera
             stderr.print(
@@ -406,7 +415,8 @@ def render_still(coordinator, output: Path, args: argparse.Namespace) -> None:
         rate = camera.width * camera.height * spp / max(done.wall_seconds, 1e-9) / 1e6
         stderr.print(
             f"wrote {output}: {camera.width}x{camera.height}, {spp} spp, "
-            f"{done.wall_seconds:.2f} s, {rate:.2f} M samples/s, {tracers} tracer"
+            f"{done.wall_seconds:.2f} s, {rate:.2f} M samples/s, "
+            f"{done.rays.sum() / max(done.wall_seconds, 1e-9) / 1e6:.2f} M rays/s, {tracers} tracer"
             f"{'s' if tracers != 1 else ''}, idle {done.idle_percent:.1f} %"
         )
 
@@ -419,11 +429,7 @@ def render_frames_progressive(coordinator, frames, outputs, args, goal) -> None:
             coordinator.graph.frame_commit(number)
             label = f"{Path(args.scene).name} frame {number}"
             progress, done = render_progressive_frame(coordinator, goal, number, label, args.quiet)
-            metadata = frame_metadata(done, args, len(done.split))
-            metadata["render"]["spp"] = progress.spp
-            metadata["seconds"] = round(progress.elapsed, 3)
-            metadata["progressive"] = progressive_metadata(progress)
-            write_image(path, progress.image, metadata)
+            write_image(path, progress.image, progressive_frame_metadata(done, args, progress))
             written += 1
             if not args.quiet:
                 stderr.print(

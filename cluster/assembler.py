@@ -22,6 +22,8 @@ class Assembler:
         self.height = height
         self.rgb = np.zeros((height, width, 3), np.float32)
         self.cost = np.zeros(height, np.int64)
+        self.rays = np.zeros(height, np.int64)
+        """Rays traced per line (zero for lines of results that did not count them)."""
         self.done = np.zeros(height, bool)
         self._assigned: set[tuple[int, int]] = set()
         self.rejected = 0
@@ -38,7 +40,8 @@ class Assembler:
 
     def accept(self, result) -> int:
         """Write a tracer's result (``frame``, ``version``, ``y0``, ``y1``, ``rgb``, ``cost``
-        attributes); returns the number of lines it completed, or -1 if it was refused."""
+        and optionally ``rays`` attributes); returns the number of lines it completed, or -1 if
+        it was refused."""
         y0, y1 = result.y0, result.y1
         rgb = np.asarray(result.rgb)
         cost = np.asarray(result.cost)
@@ -52,6 +55,9 @@ class Assembler:
         if count:
             self.rgb[y0:y1][new] = rgb[new]
             self.cost[y0:y1][new] = cost[new]
+            rays = getattr(result, "rays", None)
+            if rays is not None and np.shape(rays) == cost.shape:
+                self.rays[y0:y1][new] = np.asarray(rays)[new]
             self.done[y0:y1] = True
         return count
 

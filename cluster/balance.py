@@ -678,7 +678,9 @@ class CostAwareTail(CostAware):
         self.call_seconds = call_seconds
         self.calls_worth = calls_worth
         self.min_lines = min_lines
-        self._heads: dict[tuple[str, int, int], float] = {}  # predicted seconds of heads
+        # Predicted seconds of heads not observed yet, oldest first per (tracer, y0, y1): with
+        # the pipeline, frame N+1 may get the same head as frame N before N is observed.
+        self._heads: dict[tuple[str, int, int], deque[float]] = {}
         self._error2: float | None = None  # smoothed squared relative error of heads
 
     def head_fraction(self, frame_seconds: float = math.inf, pooled: bool = False) -> float:
@@ -717,7 +719,8 @@ class CostAwareTail(CostAware):
             head, rest = cut_head(prefix, a, b, fraction)
             heads.append(head)
             if head[1] > head[0] and known and tracer in self._work:  # a real prediction
-                self._heads[(tracer, *head)] = (prefix[head[1]] - prefix[head[0]]) / speed
+                predicted = (prefix[head[1]] - prefix[head[0]]) / speed
+                self._heads.setdefault((tracer, *head), deque()).append(predicted)
             if rest[1] > rest[0]:
                 per_line = (prefix[rest[1]] - prefix[rest[0]]) / (rest[1] - rest[0])
                 tail.append((-per_line, rest[0], rest[1]))
@@ -746,7 +749,11 @@ class CostAwareTail(CostAware):
             if r.y1 > r.y0 and _usable(r.seconds):
                 sums[0] += float(np.sum(r.line_cost))
                 sums[1] += r.seconds
-                predicted = self._heads.pop((r.tracer, r.y0, r.y1), None)
+                key = (r.tracer, r.y0, r.y1)
+                queued = self._heads.get(key)
+                predicted = queued.popleft() if queued else None
+                if queued is not None and not queued:
+                    del self._heads[key]
                 if predicted is not None and predicted > 0.0:
                     miss = min(1.0, (r.seconds / predicted - 1.0) ** 2)  # one outlier
                     self._error2 = (

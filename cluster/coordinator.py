@@ -172,6 +172,8 @@ class Frame:
     resyncs: int = 0
     effects: dict | None = None
     """The effect plan the frame was rendered with (every tracer derives the same one)."""
+    rays: np.ndarray | None = None
+    """int64 (H,): rays traced per line (camera, continuation, shadow and occlusion)."""
 
 
 @dataclass(eq=False)
@@ -1072,6 +1074,7 @@ class Coordinator:
             version=job.version,
             rgb=job.assembler.rgb,
             cost=job.assembler.cost,
+            rays=job.assembler.rays,
             camera=job.camera,
             settings=job.settings,
             split=list(job.split),

@@ -19,7 +19,7 @@ from tracer import config
 from tracer.compile import compile_scene
 from tracer.image_io import read_image
 from tracer.loader import load_scene
-from tracer.render import render_image
+from tracer.render import render_image, render_lines
 from tracer.scene_format import override
 
 TILERENDER = Path(sys.executable).with_name("tilerender")
@@ -103,7 +103,15 @@ def test_render_chooses_where_to_run(capsys, tmp_path, tiny_scene_file, options,
     spp = [] if "--target-error" in options else ["--spp", 1]  # the waves choose the spp
     code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, *size, *spp, *options, "-q")
     assert code == 0, err
-    assert png_metadata(out)["executor"] == executor
+    metadata = png_metadata(out)
+    assert metadata["executor"] == executor
+    if "--target-error" in options:  # waves count their rays one by one: none is claimed
+        assert metadata["rays"] is None
+    else:  # the rays traced, however the frame was rendered: the library's count
+        scene = compile_scene(load_scene(tiny_scene_file))
+        camera = override(scene.camera, width=8, height=4)
+        lines = render_lines(scene, 0, 4, camera, override(scene.render, spp=1))
+        assert metadata["rays"] == int(lines.rays.sum()) >= 32
 
 
 def test_large_stills_go_through_the_coordinator(tiny_scene_file):

@@ -27,7 +27,7 @@ from tests.scene_states import translation
 from tests.worker.test_replica import CAMERA, studio
 from tracer.commit_codec import encode_commit, encode_state
 from tracer.compile import compile_scene
-from tracer.render import render_image
+from tracer.render import render_image, render_lines
 from tracer.scene_model import Animation, CameraKey, NodeKey, SceneState
 from worker.tracer_actor import LinesResult
 
@@ -41,6 +41,14 @@ CAMERA_MOVE = {
 def reference(state: SceneState, frame: int = 0, sample_start: int = 0) -> np.ndarray:
     """The same frame from one process and one call: tracer.render.render_image."""
     return render_image(compile_scene(state), frame=frame, sample_start=sample_start)[0]
+
+
+def reference_rays(state: SceneState, frame: int = 0, sample_start: int = 0) -> np.ndarray:
+    """Rays traced per line of the same frame in one call (tracer.render.render_lines)."""
+    height = state.camera.height
+    return render_lines(
+        compile_scene(state), 0, height, frame=frame, sample_start=sample_start
+    ).rays
 
 
 def animated(frames: int = 32) -> SceneState:
@@ -363,6 +371,7 @@ def test_frames_with_a_dynamic_tail_equal_render_image(shared, tracers, pooled):
                 graph.commit([edit])
             frame = coordinator.render_frame(number, sample_start=sample_start)
             assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
+            assert np.array_equal(frame.rays, reference_rays(graph.state, number, sample_start))
             assert_covers(frame, 24)
             assert frame.pooled == pooled
             kinds = [r.kind for r in frame.ranges]

@@ -179,6 +179,51 @@ def test_no_tail_when_heads_miss_by_less_than_a_few_calls():
     assert not balancer.plan(300, ["a", "b"]).empty
 
 
+def test_a_pooled_plan_keeps_a_tail_where_a_call_plan_has_none():
+    """Heads predicted within 0.5%: a tail in calls would not pay (no tail), but a pooled tail
+    costs microseconds per chunk, so the pooled plan keeps at least ``POOL_MIN_TAIL`` in
+    chunks down to ``POOL_MIN_SECONDS``; ``cost-aware`` keeps a tail only when pooled."""
+    cost = sky_and_ground(300)
+    scale = float(cost.sum()) / 0.1
+    rng = np.random.default_rng(5)
+    tail, default = CostAwareTail(), make_balancer("cost-aware")
+    for _ in range(30):
+        speeds = scale * np.array([1.0, 1.0]) * np.exp(0.005 * rng.normal(size=2))
+        dynamic_frame(tail, cost, ["a", "b"], speeds)
+        dynamic_frame(default, cost, ["a", "b"], speeds)
+    assert tail.plan(300, ["a", "b"]).empty
+    assert default.plan(300, ["a", "b"]).empty
+    for balancer in (tail, default):
+        plan = balancer.plan(300, ["a", "b"], pooled=True)
+        share = plan.remaining_cost() / plan.prefix[-1]
+        assert CostAwareTail.POOL_MIN_TAIL * 0.9 <= share <= CostAwareTail.MAX_TAIL * 1.1
+        chunks = plan.take_all()
+        assert plan.empty and len(chunks) >= 5
+        speed = float(balancer.speeds(["a"])[0])
+        smallest = min(plan.prefix[b] - plan.prefix[a] for a, b in chunks) / speed
+        assert smallest < 4 * CostAwareTail.POOL_MIN_SECONDS  # far below a call's 10 ms floor
+
+
+def test_heads_planned_twice_before_an_observation_keep_both_predictions():
+    """With the pipeline, frame N+1 is planned before frame N is observed and may get the same
+    heads: both predictions are kept and matched to the frames in order."""
+    cost = sky_and_ground(300)
+    balancer = CostAwareTail(fraction=0.8)
+    dynamic_frame(balancer, cost, ["a", "b"], [1e6, 1e6])
+    first, second = balancer.plan(300, ["a", "b"]), balancer.plan(300, ["a", "b"])
+    assert first.heads == second.heads
+    keys = [("a", *first.heads[0]), ("b", *first.heads[1])]
+    assert all(len(balancer._heads[key]) == 2 for key in keys)
+    reports = [
+        TracerReport(t, y0, y1, 0.01, cost[y0:y1].astype(np.int64))
+        for t, (y0, y1) in zip(["a", "b"], first.heads, strict=True)
+    ]
+    balancer.observe(300, reports)
+    assert all(len(balancer._heads[key]) == 1 for key in keys)
+    balancer.observe(300, reports)
+    assert not any(key in balancer._heads for key in keys)
+
+
 def test_several_reports_per_tracer_give_the_speed_of_their_sums():
     """A tracer's heads and chunks count as one measurement: cost over seconds of the frame."""
     cost = np.arange(1, 101, dtype=np.int64)
