@@ -618,9 +618,10 @@ def main(argv: list[str] | None = None) -> int:
         nargs="+",
         default=None,
         choices=[*BALANCERS, ORACLE],
-        help="balancers to run (default: all but cost-aware-tail and the oracle's; with "
-        "--calls: cost-aware and cost-aware-tail). cost-aware-tail hands lines out within the "
-        "frame, which only the --calls model replays: without --calls it is cost-aware",
+        help="balancers to run (default: all but cost-aware-static, cost-aware-tail and the "
+        "oracle's; with --calls: cost-aware and cost-aware-tail). cost-aware and "
+        "cost-aware-tail hand lines out within the frame, which only the --calls model "
+        "replays: without --calls both are cost-aware-static",
     )
     parser.add_argument("--frames", type=int, default=128, help="frames to replay (default 128)")
     parser.add_argument(
@@ -742,7 +743,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.calls:
         return main_calls(args, options, machine)
     if args.balancers is None:
-        args.balancers = [*(b for b in BALANCERS if b != "cost-aware-tail"), ORACLE]
+        # Without --calls the cost-aware balancers are their static split: one row of them.
+        static = ("cost-aware-static", "cost-aware-tail")
+        args.balancers = [*(b for b in BALANCERS if b not in static), ORACLE]
     if args.sweep:
         factories = sweep_variants()
     else:

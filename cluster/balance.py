@@ -605,8 +605,8 @@ class CostAwareTail(CostAware):
     A ``pooled`` plan (every tracer shares the coordinator's machine, so the tail goes to a
     shared line pool: :mod:`worker.line_pool`) always keeps a tail of at least
     ``POOL_MIN_TAIL`` (a claim costs microseconds, not a Ray call, so no error is too small to
-    be worth it), and cuts chunks down to ``POOL_MIN_SECONDS`` and ``POOL_MIN_LINES`` lines per
-    tracer. ``call_tail=False`` gives
+    be worth it) as long as there are ``POOL_MIN_LINES`` lines per tracer, and cuts chunks down
+    to ``POOL_MIN_SECONDS`` of predicted work (and one line). ``call_tail=False`` gives
     plans without a pool no tail at all (``cost-aware``).
 
     ``observe`` takes any number of reports per tracer (heads and chunks): the profile from

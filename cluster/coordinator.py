@@ -87,6 +87,7 @@ from tracer.commit_codec import encode_commit, encode_state
 from tracer.scene_model import SceneState
 from worker.line_pool import LinePool
 from worker.line_pool import supported as line_pool_supported
+from worker.line_pool import sweep as line_pool_sweep
 from worker.replica import KEEP_VERSIONS
 from worker.tracer_actor import MAX_SCENES, LinesResult, OutOfSync, TracerInfo, remote_tracer
 
@@ -111,6 +112,8 @@ INLINE_COMMITS = 64 * 1024
 """Commit buffers larger than this many bytes go through the object store (put once, shared
 by every tracer that needs the same buffer) instead of inside each render call."""
 BUFFERS_KEPT = 8
+COORDINATOR_OWNER = 2**31
+"""The owner id under which the coordinator claims a pool's chunks it hands out itself."""
 
 
 class ClusterError(RuntimeError):
@@ -205,6 +208,8 @@ class _Slot:
     """The Ray node the tracer was placed on in one-tracer-per-node mode (None: spread)."""
     warming: Any = None
     """The pending ``warm_up`` call of a tracer placed on a new node."""
+    pool_blind: bool = False
+    """It could not open a shared line pool (until it is seen on another node)."""
 
 
 @dataclass(eq=False)
@@ -245,6 +250,8 @@ class FrameJob:
     """The dynamic tail as a shared line pool, when every tracer shares this machine."""
     arrivals: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     """Per tracer, (arrival time, busy seconds) of each accepted result, in arrival order."""
+    late_heads: dict[str, float] = field(default_factory=dict)
+    """Render seconds of heads whose lines a copy had delivered first (stragglers)."""
     result: Frame | None = None
     calls: int = 0
     failures: int = 0
@@ -333,6 +340,10 @@ class Coordinator:
         if not ray.is_initialized():
             connect()
         self._node = ray.get_runtime_context().get_node_id()
+        if ray.util.client.ray.is_connected():  # Ray Client: this process is on no Ray node
+            self.line_pool = False
+        if self.line_pool:
+            line_pool_sweep()
         self._per_node = tracers is None
         self._declined: set[str] = set()
         self._cpus_per_tracer = cpus_per_tracer
@@ -678,21 +689,29 @@ class Coordinator:
         ids = [s.id for s in slots]
         plan = getattr(self.balancer, "plan", None)
         if plan is not None:
-            pooled = self.line_pool and all(s.node == self._node for s in slots)
+            pooled = (
+                self.line_pool
+                and len(slots) > 1
+                and all(s.node == self._node and not s.pool_blind for s in slots)
+            )
             job.tail = plan(camera.height, ids, pooled=pooled)
             ranges = job.tail.heads
             if pooled and not job.tail.empty:
                 self._open_pool(job)
         else:
             ranges = self.balancer.split(camera.height, ids)
-        for owner, (slot, (y0, y1)) in enumerate(zip(slots, ranges, strict=True)):
-            job.split.append((slot.id, y0, y1))
-            if job.pool is not None:  # every tracer claims chunks, with or without a head
-                self._submit(job, slot, y0, y1, "split", 1, owner=owner)
-            elif y1 > y0:
-                self._submit(job, slot, y0, y1, "split", 1)
-        for slot in slots:  # one chunk queued behind every head
-            self._feed(job, slot)
+        try:
+            for owner, (slot, (y0, y1)) in enumerate(zip(slots, ranges, strict=True)):
+                job.split.append((slot.id, y0, y1))
+                if job.pool is not None:  # every tracer claims chunks, with or without a head
+                    self._submit(job, slot, y0, y1, "split", 1, owner=owner)
+                elif y1 > y0:
+                    self._submit(job, slot, y0, y1, "split", 1)
+            for slot in slots:  # one chunk queued behind every head
+                self._feed(job, slot)
+        except BaseException:
+            self._abandon(job)
+            raise
         return job
 
     def _open_pool(self, job: FrameJob) -> None:
@@ -707,6 +726,14 @@ class Coordinator:
         if job.pool is not None:
             job.pool.unlink()
             self._pools.discard(job.pool)
+
+    def _release_pool(self, job: FrameJob) -> None:
+        """When no pooled call is left to claim them (a tracer could not open the pool, or died
+        before it was empty), hand the pool's unclaimed chunks out in calls of their own."""
+        if job.pool is None or any(t.owner is not None for t in job.pending.values()):
+            return
+        while (chunk := job.pool.claim(COORDINATOR_OWNER)) is not None:
+            self._reassign(job, *chunk, None, 1)
 
     def _owed(self, job: FrameJob, task: _Task) -> list[tuple[int, int]]:
         """The line ranges ``task`` may deliver: its own range and the pool chunks it claimed."""
@@ -798,6 +825,14 @@ class Coordinator:
         """Collect ``job``'s lines, surviving lost tracers and stragglers; returns the frame."""
         if job.result is not None:
             return job.result
+        try:
+            self._collect(job)
+        except BaseException:
+            self._abandon(job)
+            raise
+        return self._finish(job)
+
+    def _collect(self, job: FrameJob) -> None:
         last_progress = time.perf_counter()
         while not job.assembler.complete:
             self._feed_idle(job)
@@ -820,7 +855,13 @@ class Coordinator:
             self._poll_slots()
             if not job.assembler.complete:
                 self._check_stragglers(job)
-        return self._finish(job)
+
+    def _abandon(self, job: FrameJob) -> None:
+        """Give ``job`` up (an error, or its caller stopped): its late answers are discarded
+        on arrival and its line pool is removed."""
+        self._orphans.update(job.pending)
+        job.pending.clear()
+        self._close_pool(job)
 
     def render_frame(
         self,
@@ -869,11 +910,15 @@ class Coordinator:
                 if len(in_flight) == before:
                     return  # no frames left
 
-        top_up()
-        while in_flight:
-            done = self.wait_frame(in_flight.pop(0))
-            top_up()  # N+2 is submitted before N is handed to the caller
-            yield done
+        try:
+            top_up()
+            while in_flight:
+                done = self.wait_frame(in_flight.pop(0))
+                top_up()  # N+2 is submitted before N is handed to the caller
+                yield done
+        finally:  # an error, or the caller stopped early: frames still in flight are dropped
+            for job in in_flight:
+                self._abandon(job)
 
     def _wait_dispatched(self, job: FrameJob) -> None:
         """Collect ``job``'s results until its dynamic tail is all handed out (at once without
@@ -931,14 +976,24 @@ class Coordinator:
             )
             again.resent = True
             return
+        if out.node != slot.node:
+            slot.pool_blind = False
         slot.pid, slot.node, slot.incarnation = out.pid, out.node, out.incarnation
         # The next chunk queues while this tracer works on its last (after an OutOfSync answer
         # the resend above keeps it busy, and the chunk waits until the tracer is in sync).
         self._feed(job, slot)
+        if task.owner is not None and out.more is None:
+            log.warning("tracer %s cannot open the frame's line pool", slot.id)
+            slot.pool_blind = True
         busy = 0.0
-        for part, kind in [(out, task.kind), *((chunk, "tail") for chunk in out.more)]:
-            if part.y1 == part.y0 or job.assembler.accept(part) <= 0:
-                continue  # no lines; refused (-1), or lines another copy delivered
+        for part, kind in [(out, task.kind), *((chunk, "tail") for chunk in out.more or ())]:
+            if part.y1 == part.y0:  # a pooled call without a range of its own
+                busy += part.seconds + part.apply_seconds
+                continue
+            if job.assembler.accept(part) <= 0:  # refused (-1), or lines another copy delivered
+                if kind == "split" and part.frame == job.frame:
+                    job.late_heads[slot.id] = part.seconds
+                continue
             job.ranges.append(
                 RangeReport(
                     slot.id,
@@ -954,6 +1009,7 @@ class Coordinator:
             busy += part.seconds + part.apply_seconds
             if kind == "split":
                 job.primary[slot.id] = part
+        self._release_pool(job)
         if busy > 0.0:
             job.calls += 1
             job.busy[slot.id] = job.busy.get(slot.id, 0.0) + busy
@@ -993,6 +1049,7 @@ class Coordinator:
                     f"{_first_line(error)}"
                 )
             self._reassign(job, y0, y1, task.slot, task.attempt)
+        self._release_pool(job)
 
     def _reassign(
         self, job: FrameJob, y0: int, y1: int, failed: _Slot | None, attempt: int
@@ -1020,8 +1077,11 @@ class Coordinator:
         idle = [s for s in self._slots if s.state == "ready" and s.id not in busy]
         if not idle:
             return
-        per_line = float(np.median([r.seconds / (r.y1 - r.y0) for r in job.ranges]))
-        apply = float(np.median([r.apply_seconds for r in job.ranges]))
+        # Seconds per line over everything delivered (a ratio of sums: chunks of the tail are
+        # cheap lines, heads dear ones), apply seconds of calls (chunks apply nothing).
+        per_line = sum(r.seconds for r in job.ranges) / sum(r.y1 - r.y0 for r in job.ranges)
+        calls = [r.apply_seconds for r in job.ranges if r.kind != "tail"]
+        apply = float(np.median(calls)) if calls else 0.0
         now = time.perf_counter()
         running: set[str] = set()  # tracers whose first pending call (the one running) is seen
         stuck: set[str] = set()  # tracers whose running call is a straggler
@@ -1038,7 +1098,10 @@ class Coordinator:
                 continue
             started = max(task.submitted, task.slot.last_done)
             lines = self._owed(job, task)
-            predicted = apply + per_line * sum(y1 - y0 for y0, y1 in lines)
+            if task.owner is not None and job.busy:  # pooled calls end together
+                predicted = max(job.busy.values())
+            else:
+                predicted = apply + per_line * sum(y1 - y0 for y0, y1 in lines)
             late = now - started > self.straggler_factor * predicted + self.straggler_floor
             if not (queued or late):  # a call queued behind a straggler waits as long as it
                 continue
@@ -1059,10 +1122,7 @@ class Coordinator:
 
     def _finish(self, job: FrameJob) -> Frame:
         now = time.perf_counter()
-        for ref, task in job.pending.items():  # losing copies and the like: discard on arrival
-            self._orphans[ref] = task
-        job.pending.clear()
-        self._close_pool(job)
+        self._abandon(job)  # losing copies and the like: discarded on arrival
         start = max(job.submitted, self._last_done)
         self._last_done = now
         busy = job.busy
@@ -1144,7 +1204,9 @@ class Coordinator:
         for tracer_id, y0, y1 in job.split:
             slot = by_id.get(tracer_id)
             if y1 > y0 and tracer_id not in job.primary and slot and slot.state == "ready":
-                seconds = now - max(job.submitted, slot.last_done)
+                seconds = job.late_heads.get(tracer_id)
+                if seconds is None:  # still running: the time it has run so far
+                    seconds = now - max(job.submitted, slot.last_done)
                 reports.append(
                     TracerReport(tracer_id, y0, y1, seconds, job.assembler.cost[y0:y1].copy())
                 )

@@ -9,8 +9,10 @@ chunks can be small and no tracer waits for the coordinator within a frame. Ever
 records its owner, so the coordinator can tell which lines a lost or stalled tracer held.
 
 Layout (int64): ``[next, count, (y0, y1, owner) x count]``; ``owner`` is -1 until claimed.
-Only tracers on the coordinator's machine can open the file; elsewhere the coordinator hands
-the tail out through Ray calls (``cluster.coordinator``).
+Only processes on the coordinator's machine can open the file (a tracer that cannot says so,
+and the coordinator hands the chunks out itself). The file is named after the creating
+process, so pools left behind by a process that died are removed by the next
+:func:`sweep`.
 """
 
 import mmap
@@ -29,6 +31,7 @@ except ImportError:  # pragma: no cover - not POSIX
 
 HEADER = 2
 FIELDS = 3
+PREFIX = "tilerender-pool"
 
 
 def supported() -> bool:
@@ -41,8 +44,25 @@ def _directory() -> Path:
     return shm if shm.is_dir() and os.access(shm, os.W_OK) else Path(tempfile.gettempdir())
 
 
+def sweep() -> int:
+    """Remove the pools of processes that no longer exist (a coordinator that died mid-frame);
+    returns how many."""
+    removed = 0
+    for path in _directory().glob(f"{PREFIX}-*"):
+        try:
+            pid = int(path.name.split("-")[2])
+            os.kill(pid, 0)
+        except (IndexError, ValueError, ProcessLookupError):
+            path.unlink(missing_ok=True)
+            removed += 1
+        except PermissionError:  # alive, another user's
+            pass
+    return removed
+
+
 class LinePool:
-    """Chunks of lines claimed by several processes; see the module docstring."""
+    """Chunks of lines claimed by several processes; see the module docstring. After
+    :meth:`close` the pool reads as it was then and has nothing left to claim."""
 
     def __init__(self, path: str, fd: int, buffer: mmap.mmap) -> None:
         self.path = path
@@ -51,7 +71,7 @@ class LinePool:
         self._table = np.frombuffer(buffer, np.int64)
 
     @classmethod
-    def create(cls, chunks: Sequence[tuple[int, int]], prefix: str = "tilerender") -> "LinePool":
+    def create(cls, chunks: Sequence[tuple[int, int]]) -> "LinePool":
         """A new pool holding ``chunks`` in hand-out order."""
         if not supported():  # pragma: no cover - not POSIX
             raise OSError("line pools need POSIX file locks")
@@ -61,11 +81,13 @@ class LinePool:
             if not 0 <= y0 < y1:
                 raise ValueError(f"chunk [{y0}, {y1}) is empty or negative")
             table[HEADER + FIELDS * k : HEADER + FIELDS * k + 2] = (y0, y1)
-        path = str(_directory() / f"{prefix}-pool-{uuid.uuid4().hex}")
+        path = str(_directory() / f"{PREFIX}-{os.getpid()}-{uuid.uuid4().hex}")
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
         try:
-            os.write(fd, table.tobytes())
-            return cls(path, fd, mmap.mmap(fd, table.nbytes))
+            os.ftruncate(fd, table.nbytes)
+            pool = cls(path, fd, mmap.mmap(fd, table.nbytes))
+            pool._table[:] = table
+            return pool
         except BaseException:
             os.close(fd)
             os.unlink(path)
@@ -93,7 +115,10 @@ class LinePool:
         return int(y0), int(y1), int(owner)
 
     def claim(self, owner: int) -> tuple[int, int] | None:
-        """Take the next chunk for ``owner`` (a non-negative id); None when all are taken."""
+        """Take the next chunk for ``owner`` (a non-negative id); None when all are taken (or
+        the pool is closed)."""
+        if self._fd < 0:
+            return None
         fcntl.flock(self._fd, fcntl.LOCK_EX)
         try:
             k = int(self._table[0])
@@ -116,13 +141,16 @@ class LinePool:
         return [(y0, y1) for y0, y1, who in map(self.chunk, range(len(self))) if who < 0]
 
     def close(self) -> None:
-        """Unmap and close (the file stays for the other processes)."""
+        """Unmap and close (the file stays for the other processes); the table is kept as a
+        copy, so the pool still reads as it was."""
         if self._fd < 0:
             return
+        snapshot = self._table.copy()
         del self._table
         self._buffer.close()
         os.close(self._fd)
         self._fd = -1
+        self._table = snapshot
 
     def unlink(self) -> None:
         """Close and remove the file: tracers that open it later find no pool."""

@@ -70,9 +70,10 @@ class LinesResult:
     """The effect plan the lines were rendered with (``tracer.effects.EffectPlan.to_json``)."""
     rays: np.ndarray | None = None
     """int64 (y1 - y0,): rays traced per line (camera, continuation, shadow and occlusion)."""
-    more: list["LinesResult"] = field(default_factory=list)
+    more: list["LinesResult"] | None = field(default_factory=list)
     """Chunks of the frame's shared line pool this call rendered after its own range, in the
-    order claimed (:mod:`worker.line_pool`)."""
+    order claimed (:mod:`worker.line_pool`); None when the call named a pool this tracer could
+    not open (another machine, or the frame already finished)."""
 
 
 @dataclass(frozen=True)
@@ -254,13 +255,17 @@ class Tracer:
         return result
 
     @staticmethod
-    def _drain(pool: tuple[str, int], lines) -> list[LinesResult]:
-        """Claim and render chunks of the shared pool at ``path`` until none is left."""
+    def _drain(pool: tuple[str, int], lines) -> list[LinesResult] | None:
+        """Claim and render chunks of the shared pool at ``path`` until none is left; None if
+        the pool cannot be opened here."""
         path, owner = pool
         since = time.perf_counter()
-        shared = LinePool.open(path)
-        if shared is None:  # the frame is finished (this call was a late copy)
-            return []
+        try:
+            shared = LinePool.open(path)
+        except OSError:  # not readable here (another user, another container)
+            shared = None
+        if shared is None:
+            return None
         chunks = []
         with shared:
             while (chunk := shared.claim(owner)) is not None:

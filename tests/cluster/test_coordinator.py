@@ -8,6 +8,7 @@ are 32x24 at 2 spp: milliseconds per frame, so test-only render delays (``delays
 
 import itertools
 import os
+import pathlib
 import signal
 import socket
 import threading
@@ -21,7 +22,7 @@ import trimesh
 from cluster.assembler import Assembler
 from cluster.balance import BALANCERS, CostAwareTail, idle_percent
 from cluster.connect import ClusterUnreachable, connect, disconnect, probe
-from cluster.coordinator import INLINE_COMMITS, Coordinator, gap_idle_percent
+from cluster.coordinator import INLINE_COMMITS, ClusterError, Coordinator, gap_idle_percent
 from cluster.scene_graph import SceneGraph
 from tests.scene_states import translation
 from tests.worker.test_replica import CAMERA, studio
@@ -29,6 +30,7 @@ from tracer.commit_codec import encode_commit, encode_state
 from tracer.compile import compile_scene
 from tracer.render import render_image, render_lines
 from tracer.scene_model import Animation, CameraKey, NodeKey, SceneState
+from worker import line_pool
 from worker.tracer_actor import LinesResult
 
 MOVE = {"op": "set_transform", "node": "box-a", "transform": {"translate": [0.5, 1.2, 0.3]}}
@@ -95,14 +97,14 @@ def animation_references(state: SceneState, frames) -> dict[int, np.ndarray]:
 
 def assert_covers(frame, height: int) -> None:
     """The accepted ranges partition the frame; the split is in order and disjoint, and covers
-    the frame unless a dynamic tail handed the rest out in chunks (kind ``tail``)."""
+    the frame unless a dynamic tail handed the rest out in chunks (kind ``tail``, or a pool)."""
     ranges = sorted((r.y0, r.y1) for r in frame.ranges)
     assert ranges[0][0] == 0 and ranges[-1][1] == height
     assert all(a[1] == b[0] for a, b in itertools.pairwise(ranges))
     edges = [(y0, y1) for _, y0, y1 in frame.split]
     assert all(y0 <= y1 for y0, y1 in edges)
     assert all(a[1] <= b[0] for a, b in itertools.pairwise(edges))
-    if not any(r.kind == "tail" for r in frame.ranges):
+    if not frame.pooled and not any(r.kind == "tail" for r in frame.ranges):
         assert edges[0][0] == 0 and edges[-1][1] == height
         assert all(a[1] == b[0] for a, b in itertools.pairwise(edges))
 
@@ -404,9 +406,10 @@ def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh, pooled
         assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
         assert_covers(frame, frame.rgb.shape[0])
     assert coordinator.stats["failures"] == 1
-    calls = 0 if pooled else 2
     assert any(
-        f.calls > calls and f.pooled == pooled and "tail" in {r.kind for r in f.ranges}
+        (f.calls <= 2 if pooled else f.calls > 2)
+        and f.pooled == pooled
+        and "tail" in {r.kind for r in f.ranges}
         for f in frames[:4]
     )
     assert all(0.0 <= f.idle_percent < 100.0 and 0.0 <= f.span_idle_percent < 100 for f in frames)
@@ -479,6 +482,73 @@ def test_pool_chunks_a_straggler_holds_are_duplicated(fresh):
     copies = [(r.y0, r.y1) for r in frame.ranges if r.kind == "duplicate"]
     for y0, y1 in held:
         assert all(any(a <= y < b for a, b in copies) for y in range(y0, y1)), held
+
+
+def pool_files() -> set[str]:
+    """Line pools this process created that are still on disk."""
+    directory = line_pool._directory()
+    return {p.name for p in directory.glob(f"{line_pool.PREFIX}-{os.getpid()}-*")}
+
+
+def test_long_pooled_frames_are_not_taken_for_stragglers(fresh):
+    """Frames of about a second (both tracers sleep 1 s first) whose tail is half the frame in
+    one-line chunks: the tracer still finishing its last chunk when the other returns is not
+    a straggler (pooled calls end together), so nothing is copied; no pool is left behind."""
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=2, straggler_floor=0.3, delays=[1.0, 1.0])
+    coordinator.balancer = always_tail()
+    for number in range(2):
+        frame = coordinator.render_frame(number)
+        assert frame.pooled and frame.duplicates == 0
+        assert np.array_equal(frame.rgb, reference(graph.state, number))
+    assert not pool_files()
+
+
+def test_chunks_of_a_pool_the_tracers_cannot_open_are_handed_out_in_calls(fresh, monkeypatch):
+    """Tracers that cannot open the frame's pool (here: given a path that does not exist)
+    render their heads and say so; the coordinator hands the chunks out itself, the frame
+    equals render_image, and the next frame uses no pool for them."""
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=2)
+    coordinator.balancer = always_tail()
+    opened = []
+    open_pool = coordinator._open_pool
+
+    def hidden(job):
+        open_pool(job)
+        opened.append(job.pool.path)
+        job.pool.path += "-elsewhere"  # what the tracers are told
+
+    monkeypatch.setattr(coordinator, "_open_pool", hidden)
+    try:
+        frame = coordinator.render_frame(3)
+    finally:
+        for path in opened:
+            pathlib.Path(path).unlink(missing_ok=True)
+    assert frame.pooled and np.array_equal(frame.rgb, reference(graph.state, 3))
+    kinds = {r.kind for r in frame.ranges}
+    assert "reassigned" in kinds and "tail" not in kinds, kinds
+    assert_covers(frame, 24)
+    after = coordinator.render_frame(4)
+    assert not after.pooled and np.array_equal(after.rgb, reference(graph.state, 4))
+
+
+def test_a_frame_given_up_leaves_no_pool_behind(fresh):
+    """A frame that fails (no answer within the stall timeout) raises ClusterError and
+    removes its line pool; so does closing the coordinator with a frame in flight."""
+    graph = SceneGraph(studio())
+    coordinator = fresh(graph, tracers=2, stall_timeout=0.5, delays=[3.0, 3.0])
+    coordinator.balancer = always_tail()
+    job = coordinator.submit_frame(0)
+    assert job.pool is not None and pool_files()
+    with pytest.raises(ClusterError, match="no tracer answered"):
+        coordinator.wait_frame(job)
+    assert not pool_files()
+    job = coordinator.submit_frame(1)
+    assert pool_files()
+    coordinator.close()
+    assert not pool_files()
+    assert job.pool.claimed() == [] and job.pool.claim(0) is None  # reads after close
 
 
 def test_gap_idle_percent_counts_waits_between_ranges():

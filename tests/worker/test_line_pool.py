@@ -2,9 +2,11 @@
 first, with the claimant recorded; a pool that is gone reads as none."""
 
 import multiprocessing
+import os
 
 import pytest
 
+from worker import line_pool
 from worker.line_pool import LinePool, supported
 
 pytestmark = pytest.mark.skipif(not supported(), reason="line pools need POSIX file locks")
@@ -73,3 +75,21 @@ def test_processes_racing_for_chunks_get_each_exactly_once():
             assert pool.claimed(owner) == got
     finally:
         pool.unlink()
+
+
+def test_sweep_removes_the_pools_of_processes_that_are_gone():
+    """A pool named after a process that no longer exists (its coordinator died mid-frame) is
+    removed by the next sweep; a live process's pool stays."""
+    mine = LinePool.create([(0, 1)])
+    context = multiprocessing.get_context("spawn")
+    gone = context.Process(target=int)
+    gone.start()
+    gone.join()
+    orphan = line_pool._directory() / f"{line_pool.PREFIX}-{gone.pid}-deadbeef"
+    orphan.write_bytes(b"")
+    try:
+        assert line_pool.sweep() >= 1
+        assert not orphan.exists() and os.path.exists(mine.path)
+    finally:
+        mine.unlink()
+        orphan.unlink(missing_ok=True)

@@ -87,7 +87,7 @@ def test_a_pooled_call_renders_its_range_then_every_chunk_it_claims():
     assert [(c.y0, c.y1) for c in only.more] == [(9, 12)]
     assert np.array_equal(only.more[0].rgb, expected[9:12])
     late = tracer.render(2, 0, [], None, None, 0, 1, pool=(second.path, 0))
-    assert late.more == [] and np.array_equal(late.rgb, expected[0:1])
+    assert late.more is None and np.array_equal(late.rgb, expected[0:1])  # no pool here
 
 
 def test_commits_reach_exactly_the_version_asked_for():
