@@ -29,6 +29,12 @@ class Metrics:
             buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60, 300),
             registry=r,
         )
+        self.rays = Counter(
+            "tilerender_rays",
+            "Rays traced (camera, continuation, shadow and occlusion), by frame kind",
+            ["kind"],
+            registry=r,
+        )
         self.sessions = Gauge("tilerender_sessions", "Open interactive sessions", registry=r)
         self.queue = Gauge("tilerender_job_queue", "Queued and running jobs", registry=r)
         self.tracers = Gauge("tilerender_tracers_ready", "Tracers ready to render", registry=r)

@@ -673,6 +673,7 @@ class RenderService:
             lines[r.tracer] = lines.get(r.tracer, 0) + (r.y1 - r.y0)
         busy = frame.tracer_seconds
         slowest = max(busy.values(), default=0.0)
+        rays = int(frame.rays.sum()) if frame.rays is not None else 0
         per_tracer = {
             tid: {
                 "lines": lines.get(tid, 0),
@@ -694,6 +695,12 @@ class RenderService:
             "wall_seconds": round(frame.wall_seconds, 6),
             "idle_percent": round(frame.idle_percent, 3),
             "overhead_seconds": round(frame.overhead_seconds, 6),
+            "calls": frame.calls,
+            "pooled": frame.pooled,
+            "rays": rays,
+            "mrays_per_second": round(rays / frame.wall_seconds / 1e6, 3)
+            if frame.wall_seconds > 0
+            else None,
             "tracers": per_tracer,
         }
         self.frames_rendered += 1
@@ -701,6 +708,7 @@ class RenderService:
             self.metrics.frames.labels(kind).inc()
             self.metrics.frame_seconds.labels(kind).observe(frame.wall_seconds)
             self.metrics.idle.set(frame.idle_percent)
+            self.metrics.rays.labels(kind).inc(rays)
 
     # Jobs --------------------------------------------------------------------------------------
 

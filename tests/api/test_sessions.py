@@ -94,7 +94,8 @@ def test_deleting_the_scene_closes_its_sessions(client):
 
 
 def test_session_frames_show_in_the_cluster_stats(client):
-    """/v1/cluster reports the session's frames: their size and each tracer's lines."""
+    """/v1/cluster reports the session's frames: their size, each tracer's lines, the rays
+    traced (also counted in /metrics)."""
     scene = upload_tiny(client)
     session = open_session(client, scene["id"])
     _, seq, _ = next_frame(client, session["id"], 0)
@@ -104,6 +105,11 @@ def test_session_frames_show_in_the_cluster_stats(client):
     assert last["kind"] == "session"
     assert sum(t["lines"] for t in last["tracers"].values()) == last["height"] <= 32
     assert sum(t["lines_last_frame"] or 0 for t in info["tracers"]) == last["height"]
+    assert last["rays"] >= last["width"] * last["height"] * last["spp"]  # a camera ray each
+    assert last["calls"] >= 1 and last["pooled"] is False  # one tracer: no line pool
+    metrics = client.get("/metrics").text
+    counted = [line for line in metrics.splitlines() if line.startswith("tilerender_rays_total")]
+    assert any('kind="session"' in line and float(line.split()[-1]) > 0 for line in counted)
     client.delete(f"/v1/sessions/{session['id']}")
 
 
