@@ -34,6 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # for `common`
 
 from common import (
     REPO_ROOT,
+    RESULTS_DIR,
+    console,
     fmt_float,
     machine_info,
     note,
@@ -212,6 +214,50 @@ CALLS_MIN_HEIGHT = 480
 """Least image height of the calls section (smaller orbit sizes run it at 640x480)."""
 
 
+PLOT_WINDOW = 8
+"""Frames per point of the idle plot (a moving mean: single frames vary by several points)."""
+
+
+def plot_idle(idle: dict, path: Path, title: str) -> bool:
+    """Idle % per frame of every balancer, one panel per orbit (after Bikker's figure 48), as a
+    moving mean over ``PLOT_WINDOW`` frames."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        note("matplotlib is not installed (pip install -e '.[peers]'): no plot written")
+        return False
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharey=True)
+    for ax, orbit in zip(axes, ("slow", "fast"), strict=True):
+        for name, run in idle["runs"][orbit].items():
+            style = {"linestyle": ":", "color": "grey"} if name == "oracle" else {}
+            label = "hindsight" if name == "oracle" else name
+            window = np.ones(PLOT_WINDOW) / PLOT_WINDOW
+            mean = np.convolve(run["idle_per_frame"], window, mode="valid")
+            frames = np.arange(mean.size) + PLOT_WINDOW - 1
+            ax.plot(frames, mean, label=label, linewidth=1.2, **style)
+        ax.set_yscale("log")
+        ax.set_ylim(0.3, 60)
+        ax.axhline(1.0 if orbit == "slow" else 2.0, color="black", linewidth=0.5)
+        ax.set_title(
+            f"{orbit} orbit: idle %, mean of {PLOT_WINDOW} frames (line: the target)", fontsize=9
+        )
+        ax.set_xlabel("frame", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0].set_ylabel("idle %", fontsize=8)
+    handles, names = axes[0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="upper center", ncol=min(len(names), 8), fontsize=8)
+    fig.suptitle(title, fontsize=9, y=0.02, va="bottom")
+    fig.tight_layout(rect=(0, 0.05, 1, 0.9))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=72)
+    plt.close(fig)
+    console.print(f"[dim]plot written to {path.relative_to(REPO_ROOT)}[/]")
+    return True
+
+
 def call_costs(width: int, height: int, repeats: int) -> dict:
     """What a render call costs a real tracer outside rendering (the simulator's
     ``--latency-ms`` and ``--call-gap-ms``), on the orbit scene at ``width`` x ``height``:
@@ -371,6 +417,12 @@ def main(argv: list[str] | None = None) -> int:
                 args.frames, args.balancers, width, height, not args.no_oracle, args.sequential
             )
             payload["idle_real"] = idle
+            protocol = "one after another" if args.sequential else "taking turns frame by frame"
+            plot_idle(
+                idle,
+                RESULTS_DIR / "cluster_idle.png",
+                f"2 real tracers, {width}x{height}, {args.frames} frames, balancers {protocol}",
+            )
             rows = [*args.balancers, *([] if args.no_oracle else ["oracle"])]
             noise, runs = idle["speed_noise_percent"], idle["runs"]
 
