@@ -1,10 +1,11 @@
 """Unidirectional path tracing with next-event estimation, MIS and Russian roulette, and the
 Whitted variant (direct light at diffuse and glossy surfaces, recursion through delta lobes).
 
-The kernel (``path_kernel``, built four ways) renders pixel blocks of lines [y0, y1) of a
-frame. Every random number is drawn from the counter-based RNG keyed by (seed, frame, pixel,
-sample index) at a fixed dimension per path vertex, so a pixel's value never depends on the
-split of the frame or on threads.
+The kernel (``path_kernel``, built four ways) renders pixel blocks of a pixel run [p0, p1) of
+a frame: pixels in row-major order (index ``y * width + x``), of which lines [y0, y1) are the
+run [y0 * width, y1 * width). Every random number is drawn from the counter-based RNG keyed by
+(seed, frame, pixel, sample index) at a fixed dimension per path vertex, so a pixel's value
+never depends on the split of the frame or on threads.
 
 ``max_depth`` counts path vertices after the camera (Mitsuba's convention): 1 shows only
 emitters seen directly, 2 is direct lighting, 8 allows up to seven bounces.
@@ -139,8 +140,8 @@ def path_kernel(materials: bool, lights: bool):
         camera,
         width,
         height,
-        y0,
-        y1,
+        p0,
+        p1,
         sample_start,
         spp,
         max_depth,
@@ -158,16 +159,18 @@ def path_kernel(materials: bool, lights: bool):
         out_cost,
         out_rays,
     ):
-        """Render pixel blocks ``first, first + stride, ...`` of lines [y0, y1).
+        """Render pixel blocks ``first, first + stride, ...`` of the pixel run [p0, p1).
 
-        ``scene`` is a ``SceneArrays``. ``out_rgb`` float32 (y1-y0, W, 3) gets the mean of samples
-        [sample_start, sample_start + spp) of each pixel, ``out_cost`` int64 (y1-y0, W) the work
-        spent on it, ``out_rays`` int64 (y1-y0, W) the rays traced for it (one per traversal:
-        camera, continuation and shadow rays). ``mode`` is ``PATH`` or ``WHITTED``; ``plan`` the
-        effect flags (``tracer.effects``). Threads call this with the same stride and different
-        ``first``: interleaved blocks of ``PIXEL_BLOCK`` pixels balance lines of very different
-        cost, and keep threads off each other's cache lines. ``stack_node`` (int32) and
-        ``stack_t`` (float64) are this thread's traversal stacks.
+        ``scene`` is a ``SceneArrays``. The outputs have a row per line the run touches (row 0 is
+        line ``p0 // width``; pixels outside the run are left untouched): ``out_rgb`` float32
+        (rows, W, 3) gets the mean of samples [sample_start, sample_start + spp) of each pixel,
+        ``out_cost`` int64 (rows, W) the work spent on it, ``out_rays`` int64 (rows, W) the rays
+        traced for it (one per traversal: camera, continuation and shadow rays). ``mode`` is
+        ``PATH`` or ``WHITTED``; ``plan`` the effect flags (``tracer.effects``). Threads call
+        this with the same stride and different ``first``: interleaved blocks of ``PIXEL_BLOCK``
+        pixels balance lines of very different cost, and keep threads off each other's cache
+        lines. ``stack_node`` (int32) and ``stack_t`` (float64) are this thread's traversal
+        stacks.
 
         Every array is borrowed (:mod:`tracer.borrow`) before the loops, so the inlined path code
         passes them around without atomic reference counting.
@@ -183,13 +186,15 @@ def path_kernel(materials: bool, lights: bool):
         refraction = (plan & effects.REFRACTION) != 0
         # Where ``materials`` or ``lights`` is False, the branches below that test it first are
         # removed before type inference: their callees are never compiled into this kernel.
-        n_pix = (y1 - y0) * width
-        for block in range(first, (n_pix + PIXEL_BLOCK - 1) // PIXEL_BLOCK, stride):
-            for i in range(block * PIXEL_BLOCK, min(n_pix, (block + 1) * PIXEL_BLOCK)):
-                row = i // width
-                x = i - row * width
-                y = y0 + row
-                p_key = pixel_key(seed, frame, y * width + x)
+        y_first = p0 // width  # the line of row 0 of the outputs
+        n_blocks = (p1 - p0 + PIXEL_BLOCK - 1) // PIXEL_BLOCK
+        for block in range(first, n_blocks, stride):
+            start = p0 + block * PIXEL_BLOCK
+            for i in range(start, min(p1, start + PIXEL_BLOCK)):  # i = y * width + x
+                y = i // width
+                x = i - y * width
+                row = y - y_first
+                p_key = pixel_key(seed, frame, i)
                 acc = (0.0, 0.0, 0.0)
                 cost = 0
                 rays = 0
@@ -383,7 +388,7 @@ def kernel_for(plan: int):
 
 
 @jit
-def render_pixels_specialised(scene, camera, width, height, y0, y1, sample_start, spp, max_depth,
+def render_pixels_specialised(scene, camera, width, height, p0, p1, sample_start, spp, max_depth,
                               rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride,
                               stack_node, stack_t, out_rgb, out_cost, out_rays):  # fmt: skip
     """The path kernel compiled for one plan and mode: ``numba.literally`` makes both constants,
@@ -391,6 +396,6 @@ def render_pixels_specialised(scene, camera, width, height, y0, y1, sample_start
     switches off. Kept to measure against the runtime flags (``docs/effects.md``)."""
     literally(mode)
     literally(plan)
-    render_pixels_all(scene, camera, width, height, y0, y1, sample_start, spp, max_depth,
+    render_pixels_all(scene, camera, width, height, p0, p1, sample_start, spp, max_depth,
                       rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride, stack_node,
                       stack_t, out_rgb, out_cost, out_rays)  # fmt: skip

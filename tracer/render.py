@@ -1,15 +1,17 @@
-"""Public entry points: render a line range, or a whole image with progress.
+"""Public entry points: render a pixel run or a line range, or a whole image with progress.
 
 ``render.integrator`` picks the kernel: ``path``, ``direct`` (a path of two vertices),
 ``whitted`` and ``cost`` (the path kernel's work as a heat map, ``tracer.heatmap``) run
 ``tracer.integrator`` under the effect plan (``tracer.effects``); ``ao``, ``albedo``,
 ``normal`` and ``depth`` run ``tracer.surface_integrators``.
 
-``render_lines`` is what a tracer runs for its share of a frame; ``render_image`` loops over
-line chunks in Python (one jitted call each), so progress and cancellation stay outside the
-kernel.
+``render_pixels`` renders any run [p0, p1) of a frame's pixels in row-major order, and
+``render_lines`` the line-aligned run [y0 * W, y1 * W): what a tracer runs for its share of a
+frame. ``render_image`` loops over line chunks in Python (one jitted call each), so progress and
+cancellation stay outside the kernel.
 """
 
+import numbers
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -48,6 +50,21 @@ class RenderedLines:
     seconds: float
 
 
+@dataclass
+class RenderedPixels:
+    """The pixel run [p0, p1): pixels in row-major order (index ``y * W + x``), n = p1 - p0 of
+    them. ``rgb`` float32 (n, 3) as ``RenderedLines.rgb``; ``cost`` int64 (n,) and ``rays``
+    int64 (n,) the work and the rays of each pixel (what ``RenderedLines`` sums per line)."""
+
+    p0: int
+    p1: int
+    rgb: np.ndarray
+    cost: np.ndarray
+    rays: np.ndarray
+    spp: int
+    seconds: float
+
+
 def arrays_for_plan(scene: CompiledScene, plan: EffectPlan) -> SceneArrays:
     """The scene's arrays with only the lights the plan keeps (the same arrays when it keeps
     every light the scene has)."""
@@ -71,7 +88,7 @@ def render_lines(
     plan: EffectPlan | None = None,
     specialised: bool | None = None,
 ) -> RenderedLines:
-    """Render lines [y0, y1) of a frame.
+    """Render lines [y0, y1) of a frame: the pixel run [y0 * W, y1 * W) (:func:`render_pixels`).
 
     Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
     sample ranges give independent estimates that average to the larger render. ``threads``
@@ -81,9 +98,51 @@ def render_lines(
     ``config.SPECIALISED_KERNELS``).
     """
     camera = camera or scene.camera
-    settings = settings or scene.render
     if not 0 <= y0 < y1 <= camera.height:
         raise ValueError(f"line range [{y0}, {y1}) is not inside [0, {camera.height})")
+    width = camera.width
+    run = render_pixels(
+        scene, y0 * width, y1 * width, camera, settings, frame, sample_start, threads, plan,
+        specialised,
+    )  # fmt: skip
+    lines = y1 - y0
+    return RenderedLines(
+        y0,
+        y1,
+        run.rgb.reshape(lines, width, 3),
+        run.cost.reshape(lines, width).sum(axis=1),
+        run.rays.reshape(lines, width).sum(axis=1),
+        run.spp,
+        run.seconds,
+    )
+
+
+def render_pixels(
+    scene: CompiledScene,
+    p0: int,
+    p1: int,
+    camera: fmt.Camera | None = None,
+    settings: fmt.RenderSettings | None = None,
+    frame: int = 0,
+    sample_start: int = 0,
+    threads: int | None = None,
+    plan: EffectPlan | None = None,
+    specialised: bool | None = None,
+) -> RenderedPixels:
+    """Render the pixel run [p0, p1) of a frame (row-major pixel indices ``y * W + x``; a run
+    may start and end anywhere in a line). Every pixel gets the bits it gets in any other split
+    of the frame; the other arguments are as for :func:`render_lines`.
+    """
+    camera = camera or scene.camera
+    settings = settings or scene.render
+    if not (isinstance(p0, numbers.Integral) and isinstance(p1, numbers.Integral)):
+        raise ValueError(f"pixel run [{p0!r}, {p1!r}) needs integer bounds")
+    p0, p1 = int(p0), int(p1)
+    width, height = camera.width, camera.height
+    if not 0 <= p0 < p1 <= width * height:
+        raise ValueError(
+            f"pixel run [{p0}, {p1}) is not inside [0, {width * height}) (a {width}x{height} frame)"
+        )
     if frame < 0 or sample_start < 0:
         raise ValueError("frame and sample_start must be non-negative")
     if plan is None:
@@ -93,23 +152,26 @@ def render_lines(
         np.asarray(camera.look_at) - scene.origin,
         camera.up,
         camera.vfov_deg,
-        camera.width,
-        camera.height,
+        width,
+        height,
         camera.aperture_radius,
         camera.focus_distance,
     )
-    rgb = np.empty((y1 - y0, camera.width, 3), np.float32)
-    cost = np.empty((y1 - y0, camera.width), np.int64)
-    rays = np.empty((y1 - y0, camera.width), np.int64)
+    # The kernels write rows of the lines the run touches; the run is a slice of them.
+    y_first = p0 // width
+    rows = (p1 - 1) // width + 1 - y_first
+    rgb = np.empty((rows, width, 3), np.float32)
+    cost = np.empty((rows, width), np.int64)
+    rays = np.empty((rows, width), np.int64)
     start = time.perf_counter()
     if settings.integrator in OUTPUTS:
         surface_args = (
             scene.arrays,
             cam,
-            camera.width,
-            camera.height,
-            y0,
-            y1,
+            width,
+            height,
+            p0,
+            p1,
             sample_start,
             settings.spp,
             settings.seed,
@@ -120,51 +182,54 @@ def render_lines(
             bool(plan.flags & effects.TEXTURES),
         )
 
-        def surface_work(part: int, parts: int) -> None:
+        def work(part: int, parts: int) -> None:
             stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
             stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
             render_surface(*surface_args, part, parts, stack_node, stack_t, rgb, cost, rays)
 
-        run_parts(surface_work, threads)
-        seconds = time.perf_counter() - start
-        return RenderedLines(y0, y1, rgb, cost.sum(axis=1), rays.sum(axis=1), settings.spp, seconds)
-    max_depth = settings.max_depth
-    path = settings.integrator in ("path", "cost")
-    if settings.integrator == "direct" or (path and not plan.flags & effects.INDIRECT):
-        max_depth = min(max_depth, 2)
-    mode = WHITTED if settings.integrator == "whitted" else PATH
-    args = (
-        arrays_for_plan(scene, plan),
-        cam,
-        camera.width,
-        camera.height,
-        y0,
-        y1,
-        sample_start,
-        settings.spp,
-        max_depth,
-        settings.rr_depth,
-        settings.seed,
-        frame,
-        1.0 - config.SHADOW_EPSILON,
-        mode,
-        plan.flags,
-    )
+    else:
+        max_depth = settings.max_depth
+        path = settings.integrator in ("path", "cost")
+        if settings.integrator == "direct" or (path and not plan.flags & effects.INDIRECT):
+            max_depth = min(max_depth, 2)
+        mode = WHITTED if settings.integrator == "whitted" else PATH
+        args = (
+            arrays_for_plan(scene, plan),
+            cam,
+            width,
+            height,
+            p0,
+            p1,
+            sample_start,
+            settings.spp,
+            max_depth,
+            settings.rr_depth,
+            settings.seed,
+            frame,
+            1.0 - config.SHADOW_EPSILON,
+            mode,
+            plan.flags,
+        )
+        if specialised is None:
+            specialised = config.SPECIALISED_KERNELS
+        kernel = render_pixels_specialised if specialised else kernel_for(plan.flags)
 
-    if specialised is None:
-        specialised = config.SPECIALISED_KERNELS
-    kernel = render_pixels_specialised if specialised else kernel_for(plan.flags)
-
-    def work(part: int, parts: int) -> None:
-        stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
-        stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
-        kernel(*args, part, parts, stack_node, stack_t, rgb, cost, rays)
+        def work(part: int, parts: int) -> None:
+            stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
+            stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
+            kernel(*args, part, parts, stack_node, stack_t, rgb, cost, rays)
 
     run_parts(work, threads)
+    run = slice(p0 - y_first * width, p1 - y_first * width)
+    pixel_cost = cost.reshape(-1)[run]
     if settings.integrator == "cost":
-        rgb = cost_heatmap(cost, settings.spp)
+        pixel_rgb = cost_heatmap(pixel_cost, settings.spp)
+    else:
+        pixel_rgb = rgb.reshape(-1, 3)[run]
     seconds = time.perf_counter() - start
-    return RenderedLines(y0, y1, rgb, cost.sum(axis=1), rays.sum(axis=1), settings.spp, seconds)
+    return RenderedPixels(
+        p0, p1, pixel_rgb, pixel_cost, rays.reshape(-1)[run], settings.spp, seconds
+    )
 
 
 def scene_diagonal(scene: CompiledScene) -> float:

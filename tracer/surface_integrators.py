@@ -49,8 +49,8 @@ def render_surface(
     camera,
     width,
     height,
-    y0,
-    y1,
+    p0,
+    p1,
     sample_start,
     spp,
     seed,
@@ -68,8 +68,8 @@ def render_surface(
     out_rays,
 ):
     """Render ``output`` (``AO``, ``ALBEDO``, ``NORMAL`` or ``DEPTH``) for pixel blocks
-    ``first, first + stride, ...`` of lines [y0, y1); arguments as the path kernel's
-    (``integrator.path_kernel``), plus ``ao_samples`` occlusion rays per camera sample of
+    ``first, first + stride, ...`` of the pixel run [p0, p1); arguments and outputs as the path
+    kernel's (``integrator.path_kernel``), plus ``ao_samples`` occlusion rays per camera sample of
     length ``ao_length`` (render-space units), and ``textures``: whether the albedo output
     applies base-colour textures (the effect plan's ``TEXTURES``). ``out_rays`` gets the rays
     traced per pixel: each camera ray, and each occlusion ray (``AO`` only)."""
@@ -77,13 +77,15 @@ def render_surface(
     camera = borrowed(camera)
     stack_node = borrowed(stack_node)
     stack_t = borrowed(stack_t)
-    n_pix = (y1 - y0) * width
-    for block in range(first, (n_pix + PIXEL_BLOCK - 1) // PIXEL_BLOCK, stride):
-        for i in range(block * PIXEL_BLOCK, min(n_pix, (block + 1) * PIXEL_BLOCK)):
-            row = i // width
-            x = i - row * width
-            y = y0 + row
-            p_key = pixel_key(seed, frame, y * width + x)
+    y_first = p0 // width  # the line of row 0 of the outputs
+    n_blocks = (p1 - p0 + PIXEL_BLOCK - 1) // PIXEL_BLOCK
+    for block in range(first, n_blocks, stride):
+        start = p0 + block * PIXEL_BLOCK
+        for i in range(start, min(p1, start + PIXEL_BLOCK)):  # i = y * width + x
+            y = i // width
+            x = i - y * width
+            row = y - y_first
+            p_key = pixel_key(seed, frame, i)
             acc = (0.0, 0.0, 0.0)
             cost = 0
             rays = 0
