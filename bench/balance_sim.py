@@ -44,9 +44,9 @@ from common import (
     RESULTS_DIR,
     console,
     machine_info,
-    note,
     print_machine,
     print_table,
+    pyplot,
     styled_verdict,
     verdict,
     write_results,
@@ -548,13 +548,8 @@ def sweep_variants() -> dict:
 
 def plot(results: dict, path: Path, jitter: str) -> bool:
     """Idle % per frame, one panel per orbit and scenario (figure 48's layout)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        note("matplotlib is not installed (pip install -e '.[peers]'): no plot written")
+    plt = pyplot()
+    if plt is None:
         return False
     panels = [(o, s) for o, by in results.items() for s in by]
     cols = len(results)

@@ -41,6 +41,7 @@ from common import (
     note,
     print_machine,
     print_table,
+    pyplot,
     styled_verdict,
     verdict,
     write_results,
@@ -221,13 +222,8 @@ PLOT_WINDOW = 8
 def plot_idle(idle: dict, path: Path, title: str) -> bool:
     """Idle % per frame of every balancer, one panel per orbit (after Bikker's figure 48), as a
     moving mean over ``PLOT_WINDOW`` frames."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        note("matplotlib is not installed (pip install -e '.[peers]'): no plot written")
+    plt = pyplot()
+    if plt is None:
         return False
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharey=True)
     for ax, orbit in zip(axes, ("slow", "fast"), strict=True):

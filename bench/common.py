@@ -307,3 +307,17 @@ class TreeWorker:
     def close(self) -> None:
         self.process.stdin.close()
         self.process.wait()
+
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend, or None (with a note) when matplotlib is not
+    installed (it comes with the ``peers`` extra)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        note("matplotlib is not installed (pip install -e '.[peers]'): no plot written")
+        return None
+    return plt

@@ -222,6 +222,7 @@ class Tracer:
             time.sleep(self.delay)
         settings = settings or compiled.render
         plan = effect_plan(compiled, settings)
+        effects = plan.to_json()
 
         def lines(a: int, b: int, since: float, apply_seconds: float = 0.0) -> LinesResult:
             if b > a:
@@ -245,7 +246,7 @@ class Tracer:
                 pid=self.pid,
                 node=self.node,
                 incarnation=self.incarnation,
-                effects=plan.to_json(),
+                effects=effects,
                 rays=rays,
             )
 
