@@ -7,14 +7,21 @@ height looking level, so the top of every frame is empty sky (one bounding-box t
 and the lines below the horizon cross the dense meshes and the ground: per-line costs differ by
 orders of magnitude, and the busts drift through the frame as the camera moves.
 
-For every frame, ``tracer.render.render_image`` returns the cost of each line (BVH node visits
-plus triangle tests of all the line's rays, bounces included); the script keeps those and the
-frame's wall-clock seconds. Each orbit is saved as ``bench/traces/<name>.npz``::
+For every frame, ``tracer.render.render_pixels`` renders the whole frame as one pixel run and
+returns the cost of each pixel (BVH node visits plus triangle tests of all the pixel's rays,
+bounces included); the script sums them per line and per span of a line (the cluster's work
+units, ``worker.work_units``, at the finest spans they allow) and keeps the frame's wall-clock
+seconds. The warm-up render of frame 0 goes through ``render_image`` and must give the same
+line costs (the kernels are split-independent; the script stops if not). Each orbit is saved as
+``bench/traces/<name>.npz``::
 
-    cost      int64  (frames, height)  per-line cost
-    seconds   float64 (frames,)        wall-clock seconds of the frame's render_image call
-    angle_deg float64 (frames,)        camera azimuth of each frame
-    width, height, spp, max_depth, threads, frames, orbit_deg: int/float scalars
+    cost       int64  (frames, height)         per-line cost
+    span_cost  int32  (frames, height, spans)  per-span cost, ``spans`` equal spans per line
+                                               (``WorkUnits.for_tracers(W, H, 10**6).spans``:
+                                               64 at 640 px, 16 at 128 px); sums to ``cost``
+    seconds    float64 (frames,)               wall-clock seconds of the frame's render call
+    angle_deg  float64 (frames,)               camera azimuth of each frame
+    spans, width, height, spp, max_depth, threads, frames, orbit_deg: int/float scalars
     description: str
 
 Usage (from the repository root)::
@@ -38,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 from common import REPO_ROOT, console, machine_info, usable_cores
+
+from worker.work_units import WorkUnits
 
 TRACE_DIR = REPO_ROOT / "bench" / "traces"
 MESH = REPO_ROOT / "scenes" / "nefertiti" / "nefertiti-lowres.obj"
@@ -145,28 +154,39 @@ def load_orbit_scene():
 def record(name: str, frames: int, spp: int, threads: int, state, scene, out: Path) -> Path:
     """Render one orbit and save its trace; returns the file written."""
     from tracer import scene_format as fmt
-    from tracer.render import render_image
+    from tracer.render import render_image, render_pixels
 
     degrees, width, height = ORBITS[name]
     settings = fmt.override(state.render, spp=spp)
+    units = WorkUnits(width, height, WorkUnits.for_tracers(width, height, 10**6).spans)
     angles = np.array([degrees * i / frames for i in range(frames)])
     cost = np.empty((frames, height), np.int64)
+    span_cost = np.empty((frames, height, units.spans), np.int64)
     seconds = np.empty(frames)
-    # One untimed frame first: compiles (or loads) the kernels and warms the caches.
-    render_image(scene, orbit_camera(0.0, width, height), settings, 0, threads=threads)
+    # One untimed frame first (frame 0, by whole lines): compiles (or loads) the kernels, warms
+    # the caches and gives the line costs the pixel run of frame 0 must reproduce.
+    first = orbit_camera(0.0, width, height)
+    _, lines_cost = render_image(scene, first, settings, 0, threads=threads)
     start = time.perf_counter()
     for i, angle in enumerate(angles):
         camera = orbit_camera(float(angle), width, height)
-        t0 = time.perf_counter()
-        _, cost[i] = render_image(scene, camera, settings, frame=i, threads=threads)
-        seconds[i] = time.perf_counter() - t0
+        run = render_pixels(scene, 0, width * height, camera, settings, frame=i, threads=threads)
+        seconds[i] = run.seconds
+        span_cost[i] = units.per_unit(0, units.count, run.cost).reshape(height, units.spans)
+        cost[i] = run.cost.reshape(height, width).sum(axis=1)
     total = time.perf_counter() - start
-    band_cost, band_seconds = calibrate(scene, orbit_camera(0.0, width, height), settings, threads)
+    if not np.array_equal(cost[0], lines_cost):
+        raise SystemExit(f"{name}: frame 0's line costs differ between render_image and a run")
+    if span_cost.max() > np.iinfo(np.int32).max:
+        raise SystemExit(f"{name}: a span costs {span_cost.max()}, more than int32 holds")
+    band_cost, band_seconds = calibrate(scene, first, settings, threads)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.npz"
     np.savez_compressed(
         path,
         cost=cost,
+        span_cost=span_cost.astype(np.int32),
+        spans=units.spans,
         seconds=seconds,
         angle_deg=angles,
         width=width,
@@ -189,7 +209,7 @@ def record(name: str, frames: int, spp: int, threads: int, state, scene, out: Pa
     slope, intercept = np.polyfit(band_cost, band_seconds, 1)
     fit = intercept + slope * band_cost
     console.print(
-        f"{name}: {frames} frames {width}x{height} in {total:.1f} s "
+        f"{name}: {frames} frames {width}x{height} ({units.spans} spans a line) in {total:.1f} s "
         f"({seconds.mean() * 1e3:.1f} ms/frame, median {np.median(seconds) * 1e3:.1f}); the top "
         f"third of the frame holds {sky:.1%} of the cost, lines cost {cost.min()}..{cost.max()}; "
         f"bands: seconds = {intercept * 1e3:.2f} ms + cost / {1 / slope:.3g} per s, "
@@ -225,7 +245,8 @@ def _shown(path: Path) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0]
-        + " Writes bench/traces/<name>.npz (cost per line per frame, seconds per frame).",
+        + " Writes bench/traces/<name>.npz (cost per line and per span of a line per frame, "
+        "seconds per frame).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
