@@ -1,29 +1,36 @@
-"""Replay recorded per-line cost traces through the workload balancers and measure idle time.
+"""Replay recorded cost traces through the workload balancers and measure idle time.
 
 Set-up (every balancer sees exactly the same frames, speeds and noise):
 
 - **Trace.** ``bench/traces/<orbit>.npz`` (``bench/record_cost_traces.py``): the real cost of
-  every line of 128 frames of an orbiting camera. ``slow``/``fast`` have 96 lines (128x96),
-  ``slow-hd``/``fast-hd`` 480 lines (640x480).
+  every line, and of every span of a line, of 128 frames of an orbiting camera. ``slow``/
+  ``fast`` have 96 lines (128x96, 16 spans recorded), ``slow-hd``/``fast-hd`` 480 lines
+  (640x480, 64 spans).
+- **Work units.** The balancers split a row of work units, as the coordinator does
+  (``worker.work_units``): each line cut into ``--spans`` equal spans, unit ``u`` span
+  ``u % spans`` of line ``u // spans``. ``auto`` (the default) takes the coordinator's choice
+  for each scenario, ``WorkUnits.for_tracers(W, H, T)`` (whole lines for two tracers at
+  640x480, 64 spans of 10 pixels for 128); an integer (a power of two, at most the recorded
+  spans) fixes it, 1 being whole lines. A unit's cost is the sum of its recorded spans.
 - **Tracers.** T tracers with relative speeds drawn log-uniform in ``[0.5, 2]`` from
   ``numpy.random.default_rng(seed + T)`` (the *equal* rows give every tracer speed 1, Bikker's
   Table 16 set-up with two identical GPUs). Speeds are scaled so a perfectly balanced frame
   takes ``--frame-ms`` (the cluster is sized for its frame rate).
-- **A frame.** ``split`` gives ranges; tracer i spends
-  ``sum(cost[y0:y1]) / speed_i * jitter + overhead`` seconds, where ``jitter`` is lognormal
+- **A frame.** ``split`` gives ranges of units; tracer i spends
+  ``sum(cost[u0:u1]) / speed_i * jitter + overhead`` seconds, where ``jitter`` is lognormal
   (median 1, sigma ``--jitter``), drawn per frame and tracer from a generator seeded by
   ``--seed`` (identical for every balancer), and ``overhead`` (``--overhead-ms``) is paid by
   every tracer with a non-empty range. Tracers with empty ranges are not called and spend 0 s.
-  Then ``observe`` gets each tracer's range, seconds and line costs.
+  Then ``observe`` gets each tracer's range, seconds and unit costs.
 - **Metric.** Idle % of each frame, ``100 * sum_i (t_max - t_i) / (T * t_max)`` (Table 16),
   averaged over all frames (the cold start included: frame 0 is an even split for everyone),
   over frames 8 and later ("steady"), and its 95th percentile and maximum (the spikes of
   Bikker's figure 48).
 - **Oracle.** Not a balancer: the min-max partition of each frame's *true* costs with the
-  *true* speeds. What remains is the floor set by jitter and by whole-line granularity.
+  *true* speeds. What remains is the floor set by jitter and by whole-unit granularity.
 - **Noise floor.** The idle of the jitter alone: every tracer given exactly its share of
   infinitely divisible work, so tracer i takes ``T0 * jitter_i + overhead``. In expectation no
-  split of whole lines, known in advance, does better.
+  split of whole units, known in advance, does better.
 
 Writes ``bench/results/balance_sim.json`` and, when matplotlib is installed (the ``peers``
 extra), ``bench/results/balance_sim.png`` (idle % per frame, after Bikker's figure 48).
@@ -36,6 +43,7 @@ import math
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +71,7 @@ from cluster.balance import (
     make_balancer,
     min_max_cuts,
 )
+from worker.work_units import WorkUnits
 
 TRACE_DIR = REPO_ROOT / "bench" / "traces"
 ORACLE = "oracle"
@@ -71,7 +80,7 @@ STEADY_FROM = 8
 
 # Targets from the issue, for the cost-aware balancer: (orbit, scenario) -> mean idle % at most.
 # Two tracers on both resolutions of both orbits (and the equal-speed pair); 8-128 tracers on
-# the fast orbit at 480 lines (96 lines cannot be shared among 32 or 128 tracers).
+# the fast orbit at 640x480 (128x96 has too few pixels to share among 32 or 128 tracers).
 TARGETS = {
     ("slow", "2"): 1.0,
     ("slow", "2eq"): 1.0,
@@ -87,13 +96,76 @@ TARGETS = {
 }
 
 
-def load_trace(name: str) -> np.ndarray:
-    """The cost array (frames, height) of ``bench/traces/<name>.npz``, as float64."""
+def trace_path(name: str) -> Path:
+    """``bench/traces/<name>.npz``; exits with a message when it is missing."""
     path = TRACE_DIR / f"{name}.npz"
     if not path.exists():
         raise SystemExit(f"{path} is missing: run bench/record_cost_traces.py first")
+    return path
+
+
+@cache
+def trace_size(name: str) -> tuple[int, int]:
+    """The frame size ``(width, height)`` of trace ``name``."""
+    with np.load(trace_path(name)) as data:
+        return int(data["width"]), int(data["height"])
+
+
+@cache
+def load_trace(name: str, spans: int = 1) -> np.ndarray:
+    """The cost of every work unit, ``spans`` per line, of every frame of trace ``name``:
+    float64 (frames, height * spans), units in row-major order. Groups of recorded spans are
+    summed (a span of ``WorkUnits`` is exactly a group of finer spans when spans divide).
+    ValueError when the trace was not recorded at a multiple of ``spans``."""
+    path = trace_path(name)
     with np.load(path) as data:
-        return data["cost"].astype(np.float64)
+        if spans == 1:
+            return data["cost"].astype(np.float64)
+        if "span_cost" not in data:
+            raise ValueError(
+                f"{path} has per-line costs only (recorded before spans): --spans 1 replays it, "
+                "bench/record_cost_traces.py records it again with spans"
+            )
+        span_cost = data["span_cost"]
+    frames, height, recorded = span_cost.shape
+    if recorded % spans:
+        raise ValueError(
+            f"{path} has {recorded} spans a line: --spans must be a power of two up to "
+            f"{recorded}, not {spans}"
+        )
+    grouped = span_cost.reshape(frames, height, spans, recorded // spans)
+    return grouped.sum(axis=3, dtype=np.int64).reshape(frames, height * spans).astype(np.float64)
+
+
+def spans_for(args, orbit: str, tracers: int) -> int:
+    """Spans per line for ``tracers`` on ``orbit``: ``--spans``, or the coordinator's choice."""
+    if args.spans != "auto":
+        return args.spans
+    return WorkUnits.for_tracers(*trace_size(orbit), tracers).spans
+
+
+def check_spans(args) -> str | None:
+    """Why some orbit of ``args`` cannot be replayed at its spans, or None (loads the traces)."""
+    try:
+        for orbit in args.orbits:
+            for _, count, _ in scenarios(args.tracers, not args.no_equal):
+                load_trace(orbit, spans_for(args, orbit, count))
+    except ValueError as error:
+        return str(error)
+    return None
+
+
+def spans_option(text: str) -> int | str:
+    """``--spans``: ``auto`` or a power of two."""
+    if text == "auto":
+        return text
+    try:
+        spans = int(text)
+    except ValueError:
+        spans = 0
+    if spans < 1 or spans & (spans - 1):
+        raise argparse.ArgumentTypeError(f"'auto' or a power of two (1, 2, 4, ...), not {text!r}")
+    return spans
 
 
 def tracer_speeds(count: int, equal: bool, seed: int, low: float, high: float) -> np.ndarray:
@@ -112,7 +184,7 @@ def simulate(
     overhead: float,
     lag: int = 0,
 ) -> np.ndarray:
-    """Idle % of every frame of ``cost`` (frames, H) for ``balancer`` (or ``ORACLE``) and
+    """Idle % of every frame of ``cost`` (frames, units) for ``balancer`` (or ``ORACLE``) and
     tracers of absolute ``speeds`` (cost units per second), ``jitter`` (frames, T). With
     ``lag`` k, frame f is split before frames f-k..f-1 are observed (a pipelined
     coordinator: k = 1)."""
@@ -121,10 +193,10 @@ def simulate(
     idle = np.empty(frames)
     pending: list[list[TracerReport]] = []
     for f in range(frames):
-        line_cost = cost[f]
+        unit_cost = cost[f]
         if balancer == ORACLE:
-            floor = CostAware.FLOOR * max(line_cost.mean(), 1e-300)
-            edges = min_max_cuts(np.maximum(line_cost, floor), speeds)
+            floor = CostAware.FLOOR * max(unit_cost.mean(), 1e-300)
+            edges = min_max_cuts(np.maximum(unit_cost, floor), speeds)
             ranges = list(itertools.pairwise(edges))
         else:
             ranges = balancer.split(height, ids)
@@ -132,9 +204,9 @@ def simulate(
         reports = []
         for i, (y0, y1) in enumerate(ranges):
             if y1 > y0:
-                seconds[i] = line_cost[y0:y1].sum() / speeds[i] * jitter[f, i] + overhead
+                seconds[i] = unit_cost[y0:y1].sum() / speeds[i] * jitter[f, i] + overhead
             reports.append(
-                TracerReport(ids[i], y0, y1, float(seconds[i]), line_cost[y0:y1].astype(np.int64))
+                TracerReport(ids[i], y0, y1, float(seconds[i]), unit_cost[y0:y1].astype(np.int64))
             )
         if balancer != ORACLE:
             pending.append(reports)
@@ -157,7 +229,7 @@ def simulate_calls(
 ) -> dict[str, np.ndarray]:
     """Every frame of ``cost`` as the coordinator runs it, call by call (:func:`frame_calls`),
     or with ``claim`` (seconds per chunk) as tracers sharing one machine run it, the tail in a
-    shared line pool (:func:`frame_pool`).
+    shared unit pool (:func:`frame_pool`).
     Returns per frame: ``idle`` (Table 16's measure with the gaps between a tracer's calls
     counted as idle: every tracer's window runs from its first render to the latest end of
     any), ``span_idle`` (from the first send to the last result: latency included), ``wall``
@@ -187,7 +259,7 @@ def simulate_calls(
 
 
 def frame_calls(
-    line_cost: np.ndarray,
+    unit_cost: np.ndarray,
     speeds: np.ndarray,
     ids: list[str],
     heads: list[tuple[int, int]],
@@ -211,13 +283,13 @@ def frame_calls(
 
     def send(i: int, y0: int, y1: int, now: float) -> None:
         start = max(now + latency, free[i]) + gap
-        seconds = line_cost[y0:y1].sum() / speeds[i] + overhead
+        seconds = unit_cost[y0:y1].sum() / speeds[i] + overhead
         free[i] = start + seconds
         first[i] = min(first[i], start)
         busy[i] += seconds
         heapq.heappush(events, (free[i] + latency, i))
         reports.append(
-            TracerReport(ids[i], y0, y1, float(seconds), line_cost[y0:y1].astype(np.int64))
+            TracerReport(ids[i], y0, y1, float(seconds), unit_cost[y0:y1].astype(np.int64))
         )
 
     for i, (y0, y1) in enumerate(heads):
@@ -245,7 +317,7 @@ def frame_calls(
 
 
 def frame_pool(
-    line_cost: np.ndarray,
+    unit_cost: np.ndarray,
     speeds: np.ndarray,
     ids: list[str],
     heads: list[tuple[int, int]],
@@ -253,7 +325,7 @@ def frame_pool(
     latency: float,
     claim: float,
 ) -> tuple[dict[str, float], list[TracerReport]]:
-    """One frame with the tail in a shared line pool: every tracer gets one call (``latency``
+    """One frame with the tail in a shared unit pool: every tracer gets one call (``latency``
     seconds each way), renders its head (``cost / speed``), then claims chunks in order, each
     ``claim`` seconds plus its render, the tracer free first claiming first, until none is
     left. A call's fixed cost is the latency alone (one call per tracer, as in the cluster)."""
@@ -263,10 +335,10 @@ def frame_pool(
     reports: list[TracerReport] = []
 
     def render(i: int, y0: int, y1: int, extra: float) -> None:
-        seconds = line_cost[y0:y1].sum() / speeds[i] + extra
+        seconds = unit_cost[y0:y1].sum() / speeds[i] + extra
         free[i] += seconds
         busy[i] += seconds
-        cost = line_cost[y0:y1].astype(np.int64)
+        cost = unit_cost[y0:y1].astype(np.int64)
         reports.append(TracerReport(ids[i], y0, y1, float(seconds), cost))
 
     for i, (y0, y1) in enumerate(heads):
@@ -318,6 +390,7 @@ class Scenario:
     label: str
     count: int
     equal: bool
+    spans: int
     cost: np.ndarray
     relative_speeds: np.ndarray
     speeds: np.ndarray
@@ -326,13 +399,15 @@ class Scenario:
 
 
 def orbit_scenarios(args, jitter_sigma: float) -> Iterator[Scenario]:
-    """Every orbit with every tracer count of ``args``: speeds scaled so a balanced frame
-    takes ``--frame-ms``, jitter drawn from a seed of its own, and the noise floor."""
+    """Every orbit with every tracer count of ``args``, its frames cut into units
+    (:func:`spans_for`): speeds scaled so a balanced frame takes ``--frame-ms``, jitter drawn
+    from a seed of its own, and the noise floor."""
     for orbit in args.orbits:
-        cost = load_trace(orbit)[: args.frames]
-        frames = cost.shape[0]
-        mean_frame_cost = float(cost.sum(axis=1).mean())
         for label, count, equal in scenarios(args.tracers, not args.no_equal):
+            spans = spans_for(args, orbit, count)
+            cost = load_trace(orbit, spans)[: args.frames]
+            frames = cost.shape[0]
+            mean_frame_cost = float(cost.sum(axis=1).mean())
             rel = tracer_speeds(count, equal, args.seed, *args.speed_range)
             speeds = rel * mean_frame_cost / (rel.sum() * args.frame_ms * 1e-3)
             rng = np.random.default_rng([args.seed, count, int(equal)])
@@ -340,7 +415,7 @@ def orbit_scenarios(args, jitter_sigma: float) -> Iterator[Scenario]:
             floor = float(
                 np.mean([idle_percent(args.frame_ms * j + args.overhead_ms) for j in jitter])
             )
-            yield Scenario(orbit, label, count, equal, cost, rel, speeds, jitter, floor)
+            yield Scenario(orbit, label, count, equal, spans, cost, rel, speeds, jitter, floor)
 
 
 def run(args, factories: dict, jitter_sigma: float, lag: int, keep_frames: bool) -> dict:
@@ -348,12 +423,14 @@ def run(args, factories: dict, jitter_sigma: float, lag: int, keep_frames: bool)
     ``{orbit: {scenario: {..., "balancers": {name: summary}}}}``."""
     results: dict = {}
     for sc in orbit_scenarios(args, jitter_sigma):
-        frames, height = sc.cost.shape
+        frames, units = sc.cost.shape
         entry = {
             "tracers": sc.count,
             "equal_speeds": sc.equal,
             "relative_speeds": np.round(sc.relative_speeds, 4),
-            "lines": height,
+            "lines": units // sc.spans,
+            "spans": sc.spans,
+            "units": units,
             "frames": frames,
             "noise_floor": sc.noise_floor,
             "balancers": {},
@@ -374,7 +451,13 @@ def run_calls(args, factories: dict, jitter_sigma: float, lag: int) -> dict:
     summary holds the means over all frames of idle, span idle, wall (ms) and calls."""
     results: dict = {}
     for sc in orbit_scenarios(args, jitter_sigma):
-        entry = {"tracers": sc.count, "noise_floor": sc.noise_floor, "balancers": {}}
+        entry = {
+            "tracers": sc.count,
+            "spans": sc.spans,
+            "units": sc.cost.shape[1],
+            "noise_floor": sc.noise_floor,
+            "balancers": {},
+        }
         for name, factory in factories.items():
             out = simulate_calls(
                 factory(),
@@ -398,13 +481,35 @@ def run_calls(args, factories: dict, jitter_sigma: float, lag: int) -> dict:
     return results
 
 
+def spans_headers(results: dict) -> tuple[list[str], bool]:
+    """Column headers ``T=<label> (<spans> spans)`` of ``{orbit: {label: entry}}``, and whether
+    every column's spans are the same on every orbit (else the tables show a row of them per
+    orbit and the headers leave them out)."""
+    labels = list(next(iter(results.values())))
+    spans = {k: {by_label[k]["spans"] for by_label in results.values()} for k in labels}
+    uniform = all(len(s) == 1 for s in spans.values())
+    if not uniform:
+        return [f"T={k}" for k in labels], False
+    return [f"T={k} ({next(iter(spans[k]))} spans)" for k in labels], True
+
+
+def spans_row(orbit: str, by_label: dict) -> list[str]:
+    """A table row with the spans per line and the units of each scenario of ``orbit``."""
+    cells = [f"{e['spans']} spans, {e['units']} units" for e in by_label.values()]
+    return [f"{orbit} spans a line", *cells]
+
+
 def print_calls(results: dict, title: str) -> None:
     """A row per orbit and balancer, a column per tracer count: ``idle / span idle / wall ms /
-    calls per tracer``; the noise floor on its own row."""
+    calls per tracer``; the noise floor on its own row (and the spans, see
+    :func:`spans_headers`)."""
+    headers, uniform = spans_headers(results)
     rows = []
     for orbit, by_label in results.items():
         labels = list(by_label)
         names = list(by_label[labels[0]]["balancers"])
+        if not uniform:
+            rows.append(spans_row(orbit, by_label))
         floors = (f"{by_label[k]['noise_floor']:5.2f}" for k in labels)
         rows.append([f"{orbit} noise floor", *floors])
         for name in names:
@@ -416,8 +521,7 @@ def print_calls(results: dict, title: str) -> None:
                     f"{d['calls_per_tracer']:4.1f}"
                 )
             rows.append([f"{orbit} {name}", *cells])
-    labels = list(next(iter(results.values())))
-    print_table(title, ["orbit, balancer", *(f"T={k}" for k in labels)], rows)
+    print_table(title, ["orbit, balancer", *headers], rows)
 
 
 def tail_variants() -> dict:
@@ -440,27 +544,26 @@ def tail_variants() -> dict:
 
 def print_results(results: dict, title: str) -> None:
     """One table: a row per orbit and balancer, a column per scenario, cells
-    ``mean / steady / p95``."""
+    ``mean / steady / p95`` (and the spans, see :func:`spans_headers`)."""
     orbits = list(results)
     labels = list(results[orbits[0]])
+    headers, uniform = spans_headers(results)
     rows = []
     for orbit in orbits:
         names = list(results[orbit][labels[0]]["balancers"])
+        if not uniform:
+            rows.append(spans_row(orbit, results[orbit]))
         for name in names:
             cells = []
             for label in labels:
                 d = results[orbit][label]["balancers"][name]
                 cells.append(f"{d['mean']:5.2f} /{d['steady']:5.2f} /{d['p95']:5.1f}")
             rows.append([f"{orbit} {name}", *cells])
-    headers = ["orbit, balancer"] + [
-        f"T={label} ({results[orbits[0]][label]['tracers']})" if label == "2eq" else f"T={label}"
-        for label in labels
-    ]
-    print_table(title, headers, rows)
+    print_table(title, ["orbit, balancer", *headers], rows)
 
 
 TARGET_COLUMNS = (
-    "run orbit T target all steady perfect-smooth oracle noise-floor reachable verdict steady"
+    "run orbit T spans target all steady perfect-smooth oracle noise-floor reachable verdict steady"
 )
 TARGET_COLUMNS = TARGET_COLUMNS.split()
 
@@ -482,6 +585,7 @@ def check_targets(all_results: dict) -> list[dict]:
                     "run": run_key,
                     "orbit": orbit,
                     "tracers": label,
+                    "spans": entry["spans"],
                     "target": target,
                     "mean": ours["mean"],
                     "steady": ours["steady"],
@@ -500,7 +604,7 @@ def check_targets(all_results: dict) -> list[dict]:
 
         print_table(
             "targets: cost-aware idle % (mean over all frames, over frames 8+); the oracle's "
-            "mean is the floor that jitter and whole lines leave to any balancer, the noise "
+            "mean is the floor that jitter and whole units leave to any balancer, the noise "
             "floor what jitter alone leaves even with infinitely divisible work",
             TARGET_COLUMNS,
             [
@@ -508,6 +612,7 @@ def check_targets(all_results: dict) -> list[dict]:
                     c["run"],
                     c["orbit"],
                     c["tracers"],
+                    str(c["spans"]),
                     f"<= {c['target']:.1f}",
                     cell(c["mean"]),
                     cell(c["steady"]),
@@ -565,7 +670,8 @@ def plot(results: dict, path: Path, jitter: str) -> bool:
                 ax.plot(data["per_frame"], label=name, linewidth=0.8, **style)
             ax.set_yscale("symlog", linthresh=1.0)
             ax.set_ylim(0, 100)
-            ax.set_title(f"{orbit}, T={label} ({entry['lines']} lines; {jitter})", fontsize=9)
+            size = f"{entry['lines']} lines x {entry['spans']} spans"
+            ax.set_title(f"{orbit}, T={label} ({size}; {jitter})", fontsize=9)
             ax.tick_params(labelsize=7)
             if c == 0:
                 ax.set_ylabel("idle %", fontsize=8)
@@ -615,10 +721,19 @@ def main(argv: list[str] | None = None) -> int:
         choices=[*BALANCERS, ORACLE],
         help="balancers to run (default: all but cost-aware-static, cost-aware-tail and the "
         "oracle's; with --calls: cost-aware and cost-aware-tail). cost-aware and "
-        "cost-aware-tail hand lines out within the frame, which only the --calls model "
+        "cost-aware-tail hand units out within the frame, which only the --calls model "
         "replays: without --calls both are cost-aware-static",
     )
     parser.add_argument("--frames", type=int, default=128, help="frames to replay (default 128)")
+    parser.add_argument(
+        "--spans",
+        type=spans_option,
+        default="auto",
+        help="spans per line, the work units every model balances: 'auto' for the "
+        "coordinator's choice per orbit and tracer count (WorkUnits.for_tracers), or a power "
+        "of two up to the trace's recorded spans (1: whole lines; traces recorded without "
+        "spans allow only 1) (default: %(default)s)",
+    )
     parser.add_argument(
         "--jitter",
         nargs="+",
@@ -691,7 +806,7 @@ def main(argv: list[str] | None = None) -> int:
         const=0.05,
         default=None,
         metavar="CLAIM_MS",
-        help="with --calls: the tracers share one machine, so the tail goes to a shared line "
+        help="with --calls: the tracers share one machine, so the tail goes to a shared unit "
         "pool claimed at CLAIM_MS per chunk (default %(const)s ms: a file lock, a kernel "
         "launch and the chunk's result) instead of Ray calls",
     )
@@ -730,6 +845,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--name is a file name without a directory: letters, digits, - and _")
     if not 0 < args.speed_range[0] <= args.speed_range[1]:
         parser.error("--speed-range needs 0 < LOW <= HIGH")
+    if problem := check_spans(args):
+        parser.error(problem)
 
     machine = machine_info()
     print_machine(machine)
@@ -797,7 +914,7 @@ def main_calls(args, options: dict, machine: dict) -> int:
             print_calls(
                 all_results[key],
                 f"{'tail sweep: ' if args.tail_sweep else ''}"
-                f"{'shared line pool: ' if args.pool_claim_ms is not None else ''}"
+                f"{'shared unit pool: ' if args.pool_claim_ms is not None else ''}"
                 f"calls: idle % (gaps count) / span "
                 f"idle % (latency counts) / wall ms / calls per tracer, means over "
                 f"{args.frames} frames; {key}",
