@@ -286,7 +286,8 @@ class TracerPublic(BaseModel):
     cpus: float
     threads: int
     failures: int
-    lines_last_frame: int | None
+    lines_last_frame: float | None
+    """Lines rendered in the last frame (fractional when the frame was cut into spans)."""
     lines_per_second: float | None
     idle_percent: float | None
 

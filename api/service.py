@@ -668,15 +668,15 @@ class RenderService:
         """Per-tracer lines, speed and idle time of the latest frame, for /v1/cluster."""
         if frame is None:
             return
-        lines: dict[str, int] = {}
+        lines: dict[str, float] = {}  # in lines: a frame of many tracers hands out spans of them
         for r in frame.ranges:
-            lines[r.tracer] = lines.get(r.tracer, 0) + (r.y1 - r.y0)
+            lines[r.tracer] = lines.get(r.tracer, 0.0) + frame.units.lines(r.u0, r.u1)
         busy = frame.tracer_seconds
         slowest = max(busy.values(), default=0.0)
         rays = int(frame.rays.sum()) if frame.rays is not None else 0
         per_tracer = {
             tid: {
-                "lines": lines.get(tid, 0),
+                "lines": round(lines.get(tid, 0.0), 3),
                 "seconds": round(busy.get(tid, 0.0), 6),
                 "lines_per_second": round(lines.get(tid, 0) / busy[tid], 2)
                 if busy.get(tid)

@@ -99,7 +99,7 @@ def scaling(size: int, spp: int, repeats: int) -> dict:
 
 
 class HindsightSplit:
-    """Not a balancer: cuts each frame with the min-max partition of that frame's *true* line
+    """Not a balancer: cuts each frame with the min-max partition of that frame's *true* unit
     costs (recorded in an earlier pass; pixels and costs are deterministic per frame) and each
     tracer's speed averaged over every frame seen so far. The idle it leaves is what timing
     noise alone costs on this machine: a floor for every balancer."""
@@ -123,7 +123,7 @@ class HindsightSplit:
 
     def observe(self, height: int, reports: list[TracerReport]) -> None:
         for r in reports:
-            if r.y1 > r.y0 and r.seconds > 0:
+            if r.y1 > r.y0 and r.seconds > 0:  # a TracerReport: the balancer's lines
                 self.work[r.tracer] = self.work.get(r.tracer, 0.0) + float(r.line_cost.sum())
                 self.seconds[r.tracer] = self.seconds.get(r.tracer, 0.0) + r.seconds
 
@@ -134,8 +134,8 @@ def speed_noise(frames: list) -> float:
     speeds: dict[str, list[float]] = {}
     for f in frames:
         for r in f.ranges:
-            if r.kind == "split" and r.y1 > r.y0:
-                work = float(f.cost[r.y0 : r.y1].sum())
+            if r.kind == "split" and r.u1 > r.u0:
+                work = float(f.unit_cost[r.u0 : r.u1].sum())
                 speeds.setdefault(r.tracer, []).append(work / (r.seconds + r.apply_seconds))
     cvs = [np.std(v) / np.mean(v) for v in speeds.values() if len(v) > 2]
     return 100 * statistics.fmean(cvs) if cvs else float("nan")
@@ -173,7 +173,7 @@ def idle_real(
             for name, c in coordinators.items():  # warm-up frame
                 warm = c.render_frame(camera=cameras[0], settings=settings)
                 if name == names[0]:
-                    recorded.append(warm.cost)
+                    recorded.append(warm.unit_cost)
             if sequential:
                 order = [(k, name) for name in names for k in range(frames)]
             else:
@@ -183,7 +183,7 @@ def idle_real(
                 frame = c.render_frame(frame=k, camera=cameras[k], settings=settings)
                 done[name].append(frame)
                 if name == names[0]:
-                    recorded.append(frame.cost)
+                    recorded.append(frame.unit_cost)
         finally:
             for c in coordinators.values():
                 c.close()

@@ -6,15 +6,17 @@ per node using all of that node's CPUs, and renders frames of a :class:`SceneGra
 graph's ``key``, so a service renders many scenes in turns without resending them):
 
 1. **Schedule** (``submit_frame``): the frame is pinned to the graph's current version ``v``
-   (and the state at ``v`` is kept). The balancer splits the lines among the ready tracers.
+   (and the state at ``v`` is kept). The frame is cut into work units (:mod:`worker.work_units`:
+   whole lines, or equal spans of them when there are many tracers, so that every tracer's
+   share is hundreds of units) and the balancer splits the units among the ready tracers.
    Each tracer gets one remote ``render`` call carrying the commit buffer that takes it from
    the version it will hold after its earlier calls to ``v``; a tracer with no usable scene (new,
    restarted, or further behind than the graph's log) gets the snapshot at ``v`` instead,
    ``ray.put`` once per version and shared by every tracer through the object store.
 2. **Collect** (``wait_frame``): results are written into an :class:`Assembler` that accepts
-   only the frame, version and ranges it assigned; the frame is done when every line is.
+   only the frame, version and ranges it assigned; the frame is done when every unit is.
    Meanwhile failures are handled (below).
-3. **Learn**: the balancer observes each tracer's range, render seconds and per-line cost.
+3. **Learn**: the balancer observes each tracer's range, render seconds and per-unit cost.
 
 With a dynamic tail (``cost-aware-tail``, :mod:`cluster.tail`) step 1 sends each tracer its
 head and one chunk of the tail, and step 2 sends a tracer another chunk whenever one of its
@@ -26,7 +28,7 @@ When every tracer of a frame runs on the coordinator's own Ray node, the tail do
 out in calls: step 1 writes all of it into a shared line pool (:mod:`worker.line_pool`) and
 every tracer's one call names the pool, so a tracer renders its head and then claims chunks
 itself, microseconds apart, until none is left; its result carries the chunks
-(``LinesResult.more``). Every claim records its owner, so the lines a lost or stalled tracer
+(``UnitsResult.more``). Every claim records its owner, so the units a lost or stalled tracer
 held are known. ``cost-aware`` (the default) keeps a tail only in that case, ``cost-aware-tail``
 also hands one out in calls across machines.
 
@@ -41,16 +43,16 @@ submitted once N's tail is all handed out, so its calls queue behind N's last ch
 Failures:
 
 - **Lost tracer.** A call that fails because its actor died (``RayActorError``) hands the
-  range's unfinished lines (and the pool chunks it had claimed), split evenly, to the
+  range's unfinished units (and the pool chunks it had claimed), split evenly, to the
   surviving ready tracers (preferring ones with
   nothing left to do in that frame). Ray restarts the actor (``max_restarts=-1``); the
   coordinator immediately queues a ``sync_snapshot`` call on it, which runs when the new process
   is up. When it answers, the tracer is ready again and gets work from the next scheduled frame.
 - **Straggler.** When some ready tracer has nothing left to do in a frame while a range is still
   running, and that range has run longer than ``straggler_factor`` x its predicted time plus
-  ``straggler_floor`` seconds, its unfinished lines are duplicated to an idle tracer; whichever
+  ``straggler_floor`` seconds, its unfinished units are duplicated to an idle tracer; whichever
   copy arrives first is used (the other is ignored when it arrives). The prediction is the
-  frame's own measurement: median apply seconds plus lines x median render seconds per line of
+  frame's own measurement: median apply seconds plus units x median render seconds per unit of
   the ranges already finished in this frame.
 - **Out of sync.** A tracer that cannot reach the frame's version answers ``OutOfSync`` with
   the version it holds; the range is resent with the commits from there, or a snapshot.
@@ -89,7 +91,8 @@ from worker.line_pool import LinePool
 from worker.line_pool import supported as line_pool_supported
 from worker.line_pool import sweep as line_pool_sweep
 from worker.replica import KEEP_VERSIONS
-from worker.tracer_actor import MAX_SCENES, LinesResult, OutOfSync, TracerInfo, remote_tracer
+from worker.tracer_actor import MAX_SCENES, OutOfSync, TracerInfo, UnitsResult, remote_tracer
+from worker.work_units import WorkUnits
 
 log = logging.getLogger("tilerender.cluster")
 
@@ -98,7 +101,7 @@ STRAGGLER_FACTOR = 2.0
 STRAGGLER_FLOOR = 0.5
 """... plus this many seconds (Ray call latency and timing jitter of tiny frames)."""
 MAX_ATTEMPTS = 8
-"""Times a line range may be handed out (failures, resyncs) before the frame is given up."""
+"""Times a unit range may be handed out (failures, resyncs) before the frame is given up."""
 START_TIMEOUT = 300.0
 """Seconds ``Coordinator()`` waits for its tracers to come up (first start may compile)."""
 STALL_TIMEOUT = 600.0
@@ -126,8 +129,8 @@ class RangeReport:
     """One accepted result of a frame."""
 
     tracer: str
-    y0: int
-    y1: int
+    u0: int
+    u1: int
     seconds: float
     apply_seconds: float
     kind: str
@@ -148,26 +151,30 @@ class Frame:
     """float32 (H, W, 3), linear radiance."""
     cost: np.ndarray
     """int64 (H,): work per line."""
+    units: WorkUnits
+    """How the frame was cut into work units; ``split`` and ``ranges`` count in units."""
+    unit_cost: np.ndarray
+    """int64 (units,): work per unit (what the balancer learns from)."""
     camera: fmt.Camera
     settings: fmt.RenderSettings
     split: list[tuple[str, int, int]]
-    """The balancer's assignment: (tracer, y0, y1) in tracer order."""
+    """The balancer's assignment: (tracer, u0, u1) in tracer order."""
     ranges: list[RangeReport]
     tracer_seconds: dict[str, float]
-    """Busy seconds (applying commits plus rendering) of each tracer that delivered lines."""
+    """Busy seconds (applying commits plus rendering) of each tracer that delivered units."""
     idle_percent: float
     """Bikker's Table 16 measure over ``tracer_seconds``: time tracers waited for the slowest."""
     wall_seconds: float
     """From the moment the frame could start (submitted, and the previous frame done) to its
-    last line."""
+    last unit."""
     overhead_seconds: float
     """``wall_seconds`` minus the slowest tracer's busy seconds: scheduling, transfer, waits."""
     span_idle_percent: float = 0.0
     """Idle % over the wall time: ``sum_i (wall - t_i) / (T wall)`` (latency counts too)."""
     calls: int = 0
-    """Render calls whose lines were used (one per tracer without a dynamic tail)."""
+    """Render calls whose units were used (one per tracer without a dynamic tail)."""
     pooled: bool = False
-    """The dynamic tail went to a shared line pool (every ``tail`` range was claimed by a
+    """The dynamic tail went to a shared pool (every ``tail`` range was claimed by a
     tracer within one of its calls) rather than out in calls of its own."""
     failures: int = 0
     reassigned: int = 0
@@ -215,8 +222,8 @@ class _Slot:
 @dataclass(eq=False)
 class _Task:
     slot: _Slot
-    y0: int
-    y1: int
+    u0: int
+    u1: int
     kind: str
     attempt: int
     submitted: float
@@ -237,21 +244,22 @@ class FrameJob:
     camera: fmt.Camera
     settings: fmt.RenderSettings
     sample_start: int
+    units: WorkUnits
     assembler: Assembler
     submitted: float
     split: list[tuple[str, int, int]] = field(default_factory=list)
     pending: dict = field(default_factory=dict)
     ranges: list[RangeReport] = field(default_factory=list)
     busy: dict[str, float] = field(default_factory=dict)
-    primary: dict[str, LinesResult] = field(default_factory=dict)
+    primary: dict[str, UnitsResult] = field(default_factory=dict)
     tail: TailPlan | None = None
-    """The dynamic tail's lines not handed out yet (``cost-aware-tail``)."""
+    """The dynamic tail's units not handed out yet (``cost-aware-tail``)."""
     pool: LinePool | None = None
     """The dynamic tail as a shared line pool, when every tracer shares this machine."""
     arrivals: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     """Per tracer, (arrival time, busy seconds) of each accepted result, in arrival order."""
     late_heads: dict[str, float] = field(default_factory=dict)
-    """Render seconds of heads whose lines a copy had delivered first (stragglers)."""
+    """Render seconds of heads whose units a copy had delivered first (stragglers)."""
     result: Frame | None = None
     calls: int = 0
     failures: int = 0
@@ -529,7 +537,7 @@ class Coordinator:
         return [s.id for s in slots]
 
     def remove_tracer(self, tracer_id: str, decline_node: bool = True) -> None:
-        """Stop a tracer for good; lines it still owes are handed to the others. With
+        """Stop a tracer for good; units it still owes are handed to the others. With
         ``decline_node``, ``place_new_nodes`` leaves its node alone from now on."""
         slot = self._slot(tracer_id)
         slot.state = "retired"
@@ -676,6 +684,7 @@ class Coordinator:
             raise ValueError("frame and sample_start must be non-negative")
         slots = self._schedulable()
         now = time.perf_counter()
+        units = WorkUnits.for_tracers(camera.width, camera.height, len(slots))
         job = FrameJob(
             frame=frame,
             graph=graph,
@@ -683,7 +692,8 @@ class Coordinator:
             camera=camera,
             settings=settings,
             sample_start=sample_start,
-            assembler=Assembler(frame, state.version, camera.width, camera.height),
+            units=units,
+            assembler=Assembler(frame, state.version, units),
             submitted=now,
         )
         ids = [s.id for s in slots]
@@ -694,19 +704,19 @@ class Coordinator:
                 and len(slots) > 1
                 and all(s.node == self._node and not s.pool_blind for s in slots)
             )
-            job.tail = plan(camera.height, ids, pooled=pooled)
+            job.tail = plan(units.count, ids, pooled=pooled)
             ranges = job.tail.heads
             if pooled and not job.tail.empty:
                 self._open_pool(job)
         else:
-            ranges = self.balancer.split(camera.height, ids)
+            ranges = self.balancer.split(units.count, ids)
         try:
-            for owner, (slot, (y0, y1)) in enumerate(zip(slots, ranges, strict=True)):
-                job.split.append((slot.id, y0, y1))
+            for owner, (slot, (u0, u1)) in enumerate(zip(slots, ranges, strict=True)):
+                job.split.append((slot.id, u0, u1))
                 if job.pool is not None:  # every tracer claims chunks, with or without a head
-                    self._submit(job, slot, y0, y1, "split", 1, owner=owner)
-                elif y1 > y0:
-                    self._submit(job, slot, y0, y1, "split", 1)
+                    self._submit(job, slot, u0, u1, "split", 1, owner=owner)
+                elif u1 > u0:
+                    self._submit(job, slot, u0, u1, "split", 1)
             for slot in slots:  # one chunk queued behind every head
                 self._feed(job, slot)
         except BaseException:
@@ -719,8 +729,8 @@ class Coordinator:
         chunks = job.tail.take_all()
         job.pool = LinePool.create(chunks)
         self._pools.add(job.pool)
-        for y0, y1 in chunks:
-            job.assembler.assign(y0, y1)
+        for u0, u1 in chunks:
+            job.assembler.assign(u0, u1)
 
     def _close_pool(self, job: FrameJob) -> None:
         if job.pool is not None:
@@ -736,8 +746,8 @@ class Coordinator:
             self._reassign(job, *chunk, None, 1)
 
     def _owed(self, job: FrameJob, task: _Task) -> list[tuple[int, int]]:
-        """The line ranges ``task`` may deliver: its own range and the pool chunks it claimed."""
-        own = [(task.y0, task.y1)] if task.y1 > task.y0 else []
+        """The unit ranges ``task`` may deliver: its own range and the pool chunks it claimed."""
+        own = [(task.u0, task.u1)] if task.u1 > task.u0 else []
         if task.owner is None or job.pool is None:
             return own
         return own + job.pool.claimed(task.owner)
@@ -786,8 +796,8 @@ class Coordinator:
         self,
         job: FrameJob,
         slot: _Slot,
-        y0: int,
-        y1: int,
+        u0: int,
+        u1: int,
         kind: str,
         attempt: int,
         sync: tuple[Any, Any] | None = None,
@@ -802,27 +812,28 @@ class Coordinator:
             commits,
             job.camera,
             job.settings,
-            y0,
-            y1,
+            u0,
+            u1,
             job.sample_start,
             snapshot,
             scene,
             pool=None if owner is None else (job.pool.path, owner),
+            spans=job.units.spans,
         )
         if snapshot is not None:
             _hold(slot, scene, job.version)
         elif have is not None:  # the commits (if any) take it to the version
             _hold(slot, scene, max(have, job.version))
-        if y1 > y0:
-            job.assembler.assign(y0, y1)
-        task = job.pending[ref] = _Task(slot, y0, y1, kind, attempt, time.perf_counter())
+        if u1 > u0:
+            job.assembler.assign(u0, u1)
+        task = job.pending[ref] = _Task(slot, u0, u1, kind, attempt, time.perf_counter())
         task.owner = owner
         return task
 
     # Collecting ------------------------------------------------------------------------------
 
     def wait_frame(self, job: FrameJob) -> Frame:
-        """Collect ``job``'s lines, surviving lost tracers and stragglers; returns the frame."""
+        """Collect ``job``'s units, surviving lost tracers and stragglers; returns the frame."""
         if job.result is not None:
             return job.result
         try:
@@ -838,9 +849,9 @@ class Coordinator:
             self._feed_idle(job)
             if not job.pending:
                 if job.tail is not None:
-                    job.tail.drain()  # nobody can take chunks: the lines are reassigned
-                for y0, y1 in job.assembler.missing():  # defensive: nothing owes these lines
-                    self._reassign(job, y0, y1, None, self.max_attempts)
+                    job.tail.drain()  # nobody can take chunks: the units are reassigned
+                for u0, u1 in job.assembler.missing():  # defensive: nothing owes these units
+                    self._reassign(job, u0, u1, None, self.max_attempts)
             refs = list(job.pending)
             ready, _ = ray.wait(refs, num_returns=1, timeout=POLL_SECONDS)
             if ready:
@@ -928,7 +939,7 @@ class Coordinator:
         while job.tail is not None and not job.tail.empty and not job.assembler.complete:
             refs = list(job.pending)
             if not refs:
-                return  # wait_frame hands the lines out
+                return  # wait_frame hands the units out
             ready, _ = ray.wait(refs, num_returns=1, timeout=POLL_SECONDS)
             for ref in ready:
                 self._handle(job, ref)
@@ -964,7 +975,7 @@ class Coordinator:
                 raise ClusterError(
                     f"tracer {slot.id} cannot reach version {job.version}: {out.reason}"
                 )
-            if task.owner is None and not job.assembler.missing(task.y0, task.y1):
+            if task.owner is None and not job.assembler.missing(task.u0, task.u1):
                 return
             if out.have is None or out.have >= job.version or task.resent:
                 # it cannot get there by commits
@@ -972,7 +983,7 @@ class Coordinator:
             else:
                 sync = self._sync_for(out.have, job.graph, job.state)
             again = self._submit(
-                job, slot, task.y0, task.y1, task.kind, task.attempt + 1, sync, task.owner
+                job, slot, task.u0, task.u1, task.kind, task.attempt + 1, sync, task.owner
             )
             again.resent = True
             return
@@ -987,18 +998,18 @@ class Coordinator:
             slot.pool_blind = True
         busy = 0.0
         for part, kind in [(out, task.kind), *((chunk, "tail") for chunk in out.more or ())]:
-            if part.y1 == part.y0:  # a pooled call without a range of its own
+            if part.u1 == part.u0:  # a pooled call without a range of its own
                 busy += part.seconds + part.apply_seconds
                 continue
-            if job.assembler.accept(part) <= 0:  # refused (-1), or lines another copy delivered
+            if job.assembler.accept(part) <= 0:  # refused (-1), or units another copy delivered
                 if kind == "split" and part.frame == job.frame:
                     job.late_heads[slot.id] = part.seconds
                 continue
             job.ranges.append(
                 RangeReport(
                     slot.id,
-                    part.y0,
-                    part.y1,
+                    part.u0,
+                    part.u1,
                     part.seconds,
                     part.apply_seconds,
                     kind,
@@ -1030,31 +1041,31 @@ class Coordinator:
         self._send_probe(slot, now)
 
     def _recover(self, job: FrameJob, task: _Task, error: Exception) -> None:
-        """Hand the failed task's unfinished lines, not owed by another call, to others."""
-        owed = np.zeros(job.assembler.height, bool)
+        """Hand the failed task's unfinished units, not owed by another call, to others."""
+        owed = np.zeros(job.units.count, bool)
         for other in job.pending.values():
-            for y0, y1 in self._owed(job, other):
-                owed[y0:y1] = True
+            for u0, u1 in self._owed(job, other):
+                owed[u0:u1] = True
         if job.pool is not None and any(t.owner is not None for t in job.pending.values()):
-            for y0, y1 in job.pool.unclaimed():  # a pooled call still running will claim them
-                owed[y0:y1] = True
-        mine = np.zeros(job.assembler.height, bool)
-        for y0, y1 in self._owed(job, task):
-            mine[y0:y1] = True
+            for u0, u1 in job.pool.unclaimed():  # a pooled call still running will claim them
+                owed[u0:u1] = True
+        mine = np.zeros(job.units.count, bool)
+        for u0, u1 in self._owed(job, task):
+            mine[u0:u1] = True
         todo = mine & ~job.assembler.done & ~owed
-        for y0, y1 in runs(todo):
+        for u0, u1 in runs(todo):
             if task.attempt >= self.max_attempts:
                 raise ClusterError(
-                    f"frame {job.frame}: lines [{y0}, {y1}) failed {task.attempt} times; last: "
+                    f"frame {job.frame}: units [{u0}, {u1}) failed {task.attempt} times; last: "
                     f"{_first_line(error)}"
                 )
-            self._reassign(job, y0, y1, task.slot, task.attempt)
+            self._reassign(job, u0, u1, task.slot, task.attempt)
         self._release_pool(job)
 
     def _reassign(
-        self, job: FrameJob, y0: int, y1: int, failed: _Slot | None, attempt: int
+        self, job: FrameJob, u0: int, u1: int, failed: _Slot | None, attempt: int
     ) -> None:
-        """Split lines [y0, y1) evenly among the tracers that can take them."""
+        """Split units [u0, u1) evenly among the tracers that can take them."""
         self._poll_slots()
         ready = [s for s in self._slots if s.state == "ready" and s is not failed]
         busy = {t.slot.id for t in job.pending.values()}
@@ -1063,10 +1074,10 @@ class Coordinator:
             targets = [s for s in self._slots if s.state in ("starting", "warming", "recovering")]
         if not targets:
             raise ClusterError(f"frame {job.frame}: no tracer is left to render with")
-        pieces = even_split(y1 - y0, min(len(targets), y1 - y0))
+        pieces = even_split(u1 - u0, min(len(targets), u1 - u0))
         for slot, (a, b) in zip(targets, pieces, strict=False):
             if b > a:
-                self._submit(job, slot, y0 + a, y0 + b, "reassigned", attempt + 1)
+                self._submit(job, slot, u0 + a, u0 + b, "reassigned", attempt + 1)
         job.reassigned += 1
 
     def _check_stragglers(self, job: FrameJob) -> None:
@@ -1077,9 +1088,9 @@ class Coordinator:
         idle = [s for s in self._slots if s.state == "ready" and s.id not in busy]
         if not idle:
             return
-        # Seconds per line over everything delivered (a ratio of sums: chunks of the tail are
-        # cheap lines, heads dear ones), apply seconds of calls (chunks apply nothing).
-        per_line = sum(r.seconds for r in job.ranges) / sum(r.y1 - r.y0 for r in job.ranges)
+        # Seconds per unit over everything delivered (a ratio of sums: chunks of the tail are
+        # cheap units, heads dear ones), apply seconds of calls (chunks apply nothing).
+        per_unit = sum(r.seconds for r in job.ranges) / sum(r.u1 - r.u0 for r in job.ranges)
         calls = [r.apply_seconds for r in job.ranges if r.kind != "tail"]
         apply = float(np.median(calls)) if calls else 0.0
         now = time.perf_counter()
@@ -1097,26 +1108,26 @@ class Coordinator:
                     stuck.add(tracer)
                 continue
             started = max(task.submitted, task.slot.last_done)
-            lines = self._owed(job, task)
+            owed = self._owed(job, task)
             if task.owner is not None and job.busy:  # pooled calls end together
                 predicted = max(job.busy.values())
             else:
-                predicted = apply + per_line * sum(y1 - y0 for y0, y1 in lines)
+                predicted = apply + per_unit * sum(u1 - u0 for u0, u1 in owed)
             late = now - started > self.straggler_factor * predicted + self.straggler_floor
             if not (queued or late):  # a call queued behind a straggler waits as long as it
                 continue
             stuck.add(tracer)
-            missing = [run for y0, y1 in lines for run in job.assembler.missing(y0, y1)]
+            missing = [run for u0, u1 in owed for run in job.assembler.missing(u0, u1)]
             if not missing:
                 continue
             target = idle.pop(0)
             log.info(
-                "frame %d: tracer %s ran lines [%d, %d) for %.2f s (predicted %.2f s): "
+                "frame %d: tracer %s ran units [%d, %d) for %.2f s (predicted %.2f s): "
                 "duplicating to %s",
-                job.frame, task.slot.id, task.y0, task.y1, now - started, predicted, target.id,
+                job.frame, task.slot.id, task.u0, task.u1, now - started, predicted, target.id,
             )  # fmt: skip
-            for y0, y1 in missing:
-                self._submit(job, target, y0, y1, "duplicate", task.attempt)
+            for u0, u1 in missing:
+                self._submit(job, target, u0, u1, "duplicate", task.attempt)
             task.duplicated = True
             job.duplicates += 1
 
@@ -1133,12 +1144,14 @@ class Coordinator:
             frame=job.frame,
             version=job.version,
             rgb=job.assembler.rgb,
-            cost=job.assembler.cost,
-            rays=job.assembler.rays,
+            cost=job.assembler.line_cost(),
+            units=job.units,
+            unit_cost=job.assembler.cost,
+            rays=job.assembler.line_rays(),
             camera=job.camera,
             settings=job.settings,
             split=list(job.split),
-            ranges=sorted(job.ranges, key=lambda r: r.y0),
+            ranges=sorted(job.ranges, key=lambda r: r.u0),
             tracer_seconds=dict(busy),
             idle_percent=gap_idle_percent(job.arrivals),
             wall_seconds=wall,
@@ -1160,55 +1173,56 @@ class Coordinator:
         return frame
 
     def _observe(self, job: FrameJob, now: float) -> None:
-        """Tell the balancer what each tracer of the split did. A straggler whose lines came
-        from a duplicate reports the time it had run (a lower bound); a lost tracer reports
-        nothing (the balancer keeps its prediction for those lines)."""
+        """Tell the balancer what each tracer of the split did (the balancer's lines are the
+        frame's work units). A straggler whose units came from a duplicate reports the time it
+        had run (a lower bound); a lost tracer reports nothing (the balancer keeps its
+        prediction for those units)."""
         if job.tail is not None:
             self._observe_tail(job, now)
             return
         reports = []
-        for tracer_id, y0, y1 in job.split:
+        for tracer_id, u0, u1 in job.split:
             result = job.primary.get(tracer_id)
-            if y1 == y0:
-                reports.append(TracerReport(tracer_id, y0, y1, 0.0, np.zeros(0, np.int64)))
+            if u1 == u0:
+                reports.append(TracerReport(tracer_id, u0, u1, 0.0, np.zeros(0, np.int64)))
             elif result is not None:
-                reports.append(TracerReport(tracer_id, y0, y1, result.seconds, result.cost))
+                reports.append(TracerReport(tracer_id, u0, u1, result.seconds, result.cost))
         reports += self._stalled_reports(job, now)
         if reports:
-            self.balancer.observe(job.camera.height, reports)
+            self.balancer.observe(job.units.count, reports)
 
     def _observe_tail(self, job: FrameJob, now: float) -> None:
         """Tell a dynamic-tail balancer every accepted range: heads and chunks with their
-        render seconds, lines of copies and reassignments with none (NaN: cost only). A
+        render seconds, units of copies and reassignments with none (NaN: cost only). A
         straggler whose head came from a copy reports the time it had run on it (a lower
         bound), as without a tail."""
         reports = [
             TracerReport(
                 r.tracer,
-                r.y0,
-                r.y1,
+                r.u0,
+                r.u1,
                 r.seconds if r.kind in ("split", "tail") else math.nan,
-                job.assembler.cost[r.y0 : r.y1].copy(),
+                job.assembler.cost[r.u0 : r.u1].copy(),
             )
             for r in job.ranges
         ]
         reports += self._stalled_reports(job, now)
         if reports:
-            self.balancer.observe(job.camera.height, reports)
+            self.balancer.observe(job.units.count, reports)
 
     def _stalled_reports(self, job: FrameJob, now: float) -> list[TracerReport]:
-        """Stragglers of ``job``'s split whose lines a copy delivered, each with the time it
+        """Stragglers of ``job``'s split whose units a copy delivered, each with the time it
         had run (a lower bound); a lost tracer reports nothing."""
         by_id = {s.id: s for s in self._slots}
         reports = []
-        for tracer_id, y0, y1 in job.split:
+        for tracer_id, u0, u1 in job.split:
             slot = by_id.get(tracer_id)
-            if y1 > y0 and tracer_id not in job.primary and slot and slot.state == "ready":
+            if u1 > u0 and tracer_id not in job.primary and slot and slot.state == "ready":
                 seconds = job.late_heads.get(tracer_id)
                 if seconds is None:  # still running: the time it has run so far
                     seconds = now - max(job.submitted, slot.last_done)
                 reports.append(
-                    TracerReport(tracer_id, y0, y1, seconds, job.assembler.cost[y0:y1].copy())
+                    TracerReport(tracer_id, u0, u1, seconds, job.assembler.cost[u0:u1].copy())
                 )
         return reports
 

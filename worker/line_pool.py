@@ -1,14 +1,15 @@
-"""A frame's dynamic tail shared by the tracers of one machine: chunks of lines in shared memory.
+"""A frame's dynamic tail shared by the tracers of one machine: chunks in shared memory.
 
-The coordinator writes the tail's chunks (``[y0, y1)`` in the order they are to be handed
-out) into a small file in ``/dev/shm`` (the temp directory where there is none); each tracer
-whose render call names the pool renders its own range, then claims chunks one at a time until
-none is left, and returns them with its range. A claim is a few microseconds (an exclusive
+A chunk is a range ``[u0, u1)`` of the frame's work units (:mod:`worker.work_units`: whole
+lines, or spans of them). The coordinator writes the tail's chunks (in the order they are to
+be handed out) into a small file in ``/dev/shm`` (the temp directory where there is none);
+each tracer whose render call names the pool renders its own range, then claims chunks one at a time
+until none is left, and returns them with its range. A claim is a few microseconds (an exclusive
 ``flock`` around a counter in the mapped file) instead of the millisecond a Ray call costs, so
-chunks can be small and no tracer waits for the coordinator within a frame. Every claim
-records its owner, so the coordinator can tell which lines a lost or stalled tracer held.
+chunks can be small and no tracer waits for the coordinator within a frame. Every claim records its
+owner, so the coordinator can tell which units a lost or stalled tracer held.
 
-Layout (int64): ``[next, count, (y0, y1, owner) x count]``; ``owner`` is -1 until claimed.
+Layout (int64): ``[next, count, (u0, u1, owner) x count]``; ``owner`` is -1 until claimed.
 Only processes on the coordinator's machine can open the file (a tracer that cannot says so,
 and the coordinator hands the chunks out itself). The file is named after the creating
 process, so pools left behind by a process that died are removed by the next
@@ -61,7 +62,7 @@ def sweep() -> int:
 
 
 class LinePool:
-    """Chunks of lines claimed by several processes; see the module docstring. After
+    """Chunks of work units claimed by several processes; see the module docstring. After
     :meth:`close` the pool reads as it was then and has nothing left to claim."""
 
     def __init__(self, path: str, fd: int, buffer: mmap.mmap) -> None:
@@ -77,10 +78,10 @@ class LinePool:
             raise OSError("line pools need POSIX file locks")
         table = np.full(HEADER + FIELDS * len(chunks), -1, np.int64)
         table[0], table[1] = 0, len(chunks)
-        for k, (y0, y1) in enumerate(chunks):
-            if not 0 <= y0 < y1:
-                raise ValueError(f"chunk [{y0}, {y1}) is empty or negative")
-            table[HEADER + FIELDS * k : HEADER + FIELDS * k + 2] = (y0, y1)
+        for k, (u0, u1) in enumerate(chunks):
+            if not 0 <= u0 < u1:
+                raise ValueError(f"chunk [{u0}, {u1}) is empty or negative")
+            table[HEADER + FIELDS * k : HEADER + FIELDS * k + 2] = (u0, u1)
         path = str(_directory() / f"{PREFIX}-{os.getpid()}-{uuid.uuid4().hex}")
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
         try:
@@ -110,9 +111,9 @@ class LinePool:
         return int(self._table[1])
 
     def chunk(self, k: int) -> tuple[int, int, int]:
-        """Chunk ``k`` as (y0, y1, owner); owner -1: not claimed."""
-        y0, y1, owner = self._table[HEADER + FIELDS * k : HEADER + FIELDS * (k + 1)]
-        return int(y0), int(y1), int(owner)
+        """Chunk ``k`` as (u0, u1, owner); owner -1: not claimed."""
+        u0, u1, owner = self._table[HEADER + FIELDS * k : HEADER + FIELDS * (k + 1)]
+        return int(u0), int(u1), int(owner)
 
     def claim(self, owner: int) -> tuple[int, int] | None:
         """Take the next chunk for ``owner`` (a non-negative id); None when all are taken (or
@@ -128,17 +129,17 @@ class LinePool:
             self._table[HEADER + FIELDS * k + 2] = owner
         finally:
             fcntl.flock(self._fd, fcntl.LOCK_UN)
-        y0, y1, _ = self.chunk(k)
-        return y0, y1
+        u0, u1, _ = self.chunk(k)
+        return u0, u1
 
     def claimed(self, owner: int | None = None) -> list[tuple[int, int]]:
         """Chunks claimed so far (by ``owner`` only, when given)."""
         chunks = (self.chunk(k) for k in range(len(self)))
-        return [(y0, y1) for y0, y1, who in chunks if who >= 0 and (owner is None or who == owner)]
+        return [(u0, u1) for u0, u1, who in chunks if who >= 0 and (owner is None or who == owner)]
 
     def unclaimed(self) -> list[tuple[int, int]]:
         """Chunks nobody has claimed yet."""
-        return [(y0, y1) for y0, y1, who in map(self.chunk, range(len(self))) if who < 0]
+        return [(u0, u1) for u0, u1, who in map(self.chunk, range(len(self))) if who < 0]
 
     def close(self) -> None:
         """Unmap and close (the file stays for the other processes); the table is kept as a

@@ -1,7 +1,8 @@
 """A Brigade tracer (Bikker 7.3.1-7.3.4) as a Ray actor.
 
 :class:`Tracer` is a plain class that owns a :class:`~worker.replica.SceneReplica` and renders
-line ranges of frames with :func:`tracer.render.render_lines`; :func:`remote_tracer` makes the
+ranges of a frame's work units (:mod:`worker.work_units`: whole lines, or spans of them) with
+:func:`tracer.render.render_pixels`; :func:`remote_tracer` makes the
 Ray actor class from it (one process per tracer, restarted by Ray when it dies). Keeping the
 class plain lets the tests drive it in-process, without Ray.
 
@@ -33,10 +34,11 @@ from tracer import scene_format as fmt
 from tracer.effects import effect_plan
 from tracer.errors import SceneError
 from tracer.query import SceneHits
-from tracer.render import render_lines
+from tracer.render import render_lines, render_pixels
 from tracer.threads import default_threads
 from worker.line_pool import LinePool
 from worker.replica import SceneReplica
+from worker.work_units import WorkUnits
 
 DEFAULT_SCENE = "default"
 """The scene key of calls that name none (a tracer serving one scene)."""
@@ -46,18 +48,19 @@ for it later answers :class:`OutOfSync` and is resent with a snapshot)."""
 
 
 @dataclass
-class LinesResult:
-    """Lines [y0, y1) of ``frame`` rendered at scene ``version`` by one tracer."""
+class UnitsResult:
+    """Work units [u0, u1) of ``frame`` (``spans`` units per line) rendered at scene
+    ``version`` by one tracer."""
 
     tracer: str
     frame: int
     version: int
-    y0: int
-    y1: int
+    u0: int
+    u1: int
     rgb: np.ndarray
-    """float32 (y1 - y0, W, 3), linear radiance."""
+    """float32 (pixels, 3), linear radiance of the units' pixel run, in row-major order."""
     cost: np.ndarray
-    """int64 (y1 - y0,): work per line (BVH node visits plus triangle tests)."""
+    """int64 (u1 - u0,): work per unit (BVH node visits plus triangle tests)."""
     seconds: float
     """Rendering (including a test-only ``delay``), not applying commits."""
     apply_seconds: float
@@ -67,11 +70,13 @@ class LinesResult:
     incarnation: str
     """Changes when Ray restarts the actor (a new process with an empty replica)."""
     effects: dict | None = None
-    """The effect plan the lines were rendered with (``tracer.effects.EffectPlan.to_json``)."""
+    """The effect plan the units were rendered with (``tracer.effects.EffectPlan.to_json``)."""
     rays: np.ndarray | None = None
-    """int64 (y1 - y0,): rays traced per line (camera, continuation, shadow and occlusion)."""
-    more: list["LinesResult"] | None = field(default_factory=list)
-    """Chunks of the frame's shared line pool this call rendered after its own range, in the
+    """int64 (u1 - u0,): rays traced per unit (camera, continuation, shadow and occlusion)."""
+    spans: int = 1
+    """Units per line of the frame (:class:`worker.work_units.WorkUnits`)."""
+    more: list["UnitsResult"] | None = field(default_factory=list)
+    """Chunks of the frame's shared pool this call rendered after its own range, in the
     order claimed (:mod:`worker.line_pool`); None when the call named a pool this tracer could
     not open (another machine, or the frame already finished)."""
 
@@ -120,7 +125,7 @@ def _node_id() -> str:
 
 
 class Tracer:
-    """One tracer: a scene replica and a renderer of line ranges. Not thread-safe; a Ray actor
+    """One tracer: a scene replica and a renderer of work-unit ranges. Not thread-safe; a Ray actor
     runs one call at a time, in submission order.
 
     ``cpus`` is what the actor reserved; it renders with ``max(1, floor(cpus))`` threads.
@@ -197,20 +202,22 @@ class Tracer:
         commits: list[bytes],
         camera: fmt.Camera | None,
         settings: fmt.RenderSettings | None,
-        y0: int,
-        y1: int,
+        u0: int,
+        u1: int,
         sample_start: int = 0,
         snapshot: bytes | None = None,
         scene: str = DEFAULT_SCENE,
         pool: tuple[str, int] | None = None,
-    ) -> "LinesResult | OutOfSync":
-        """Render lines [y0, y1) of ``frame`` exactly at ``version`` of ``scene``.
+        spans: int = 1,
+    ) -> "UnitsResult | OutOfSync":
+        """Render work units [u0, u1) of ``frame`` (``spans`` units per line: whole lines by
+        default) exactly at ``version`` of ``scene``.
 
         First applies ``commits`` (encoded, in version order; ones already applied are
         skipped), or starts from ``snapshot`` when given and needed. ``camera`` and ``settings``
         default to the scene's at ``version``. ``pool``: (path, owner id) of the frame's
-        shared line pool; after its own lines the tracer claims and renders the pool's chunks
-        until none is left (``LinesResult.more``). [y0, y1) may then be empty.
+        shared pool; after its own units the tracer claims and renders the pool's chunks
+        until none is left (``UnitsResult.more``). [u0, u1) may then be empty.
         """
         start = time.perf_counter()
         problem = self._reach(scene, version, commits, snapshot)
@@ -221,24 +228,27 @@ class Tracer:
         if self.delay > 0.0:
             time.sleep(self.delay)
         settings = settings or compiled.render
+        camera = camera or compiled.camera
+        units = WorkUnits(camera.width, camera.height, spans)
         plan = effect_plan(compiled, settings)
         effects = plan.to_json()
 
-        def lines(a: int, b: int, since: float, apply_seconds: float = 0.0) -> LinesResult:
+        def render_units(a: int, b: int, since: float, apply_seconds: float = 0.0) -> UnitsResult:
             if b > a:
-                out = render_lines(
-                    compiled, a, b, camera, settings, frame, sample_start, self.threads, plan
+                p0, p1 = units.pixels(a, b)
+                out = render_pixels(
+                    compiled, p0, p1, camera, settings, frame, sample_start, self.threads, plan
                 )
-                rgb, cost, rays = out.rgb, out.cost, out.rays
+                rgb = out.rgb
+                cost, rays = units.per_unit(a, b, out.cost), units.per_unit(a, b, out.rays)
             else:  # a tracer of a pooled frame with no range of its own
-                width = (camera or compiled.camera).width
-                rgb, cost, rays = np.zeros((0, width, 3), np.float32), np.zeros(0, np.int64), None
-            return LinesResult(
+                rgb, cost, rays = np.zeros((0, 3), np.float32), np.zeros(0, np.int64), None
+            return UnitsResult(
                 tracer=self.id,
                 frame=frame,
                 version=version,
-                y0=a,
-                y1=b,
+                u0=a,
+                u1=b,
                 rgb=rgb,
                 cost=cost,
                 seconds=time.perf_counter() - since,
@@ -248,15 +258,16 @@ class Tracer:
                 incarnation=self.incarnation,
                 effects=effects,
                 rays=rays,
+                spans=spans,
             )
 
-        result = lines(y0, y1, applied, applied - start)
+        result = render_units(u0, u1, applied, applied - start)
         if pool is not None:
-            result.more = self._drain(pool, lines)
+            result.more = self._drain(pool, render_units)
         return result
 
     @staticmethod
-    def _drain(pool: tuple[str, int], lines) -> list[LinesResult] | None:
+    def _drain(pool: tuple[str, int], render_units) -> list[UnitsResult] | None:
         """Claim and render chunks of the shared pool at ``path`` until none is left; None if
         the pool cannot be opened here."""
         path, owner = pool
@@ -270,7 +281,7 @@ class Tracer:
         chunks = []
         with shared:
             while (chunk := shared.claim(owner)) is not None:
-                chunks.append(lines(*chunk, since))  # its seconds include the claim
+                chunks.append(render_units(*chunk, since))  # its seconds include the claim
                 since = time.perf_counter()
         return chunks
 

@@ -31,7 +31,8 @@ from tracer.compile import compile_scene
 from tracer.render import render_image, render_lines
 from tracer.scene_model import Animation, CameraKey, NodeKey, SceneState
 from worker import line_pool
-from worker.tracer_actor import LinesResult
+from worker.tracer_actor import UnitsResult
+from worker.work_units import WorkUnits
 
 MOVE = {"op": "set_transform", "node": "box-a", "transform": {"translate": [0.5, 1.2, 0.3]}}
 CAMERA_MOVE = {
@@ -95,14 +96,16 @@ def animation_references(state: SceneState, frames) -> dict[int, np.ndarray]:
     return out
 
 
-def assert_covers(frame, height: int) -> None:
-    """The accepted ranges partition the frame; the split is in order and disjoint, and covers
-    the frame unless a dynamic tail handed the rest out in chunks (kind ``tail``, or a pool)."""
-    ranges = sorted((r.y0, r.y1) for r in frame.ranges)
+def assert_covers(frame) -> None:
+    """The accepted ranges partition the frame's units; the split is in order and disjoint, and
+    covers the frame unless a dynamic tail handed the rest out in chunks (kind ``tail``, or a
+    pool)."""
+    height = frame.units.count
+    ranges = sorted((r.u0, r.u1) for r in frame.ranges)
     assert ranges[0][0] == 0 and ranges[-1][1] == height
     assert all(a[1] == b[0] for a, b in itertools.pairwise(ranges))
-    edges = [(y0, y1) for _, y0, y1 in frame.split]
-    assert all(y0 <= y1 for y0, y1 in edges)
+    edges = [(u0, u1) for _, u0, u1 in frame.split]
+    assert all(u0 <= u1 for u0, u1 in edges)
     assert all(a[1] <= b[0] for a, b in itertools.pairwise(edges))
     if not frame.pooled and not any(r.kind == "tail" for r in frame.ranges):
         assert edges[0][0] == 0 and edges[-1][1] == height
@@ -190,12 +193,12 @@ def test_frames_equal_render_image(shared, tracers, balancer):
         assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
         assert frame.cost.shape == (24,) and frame.cost.min() > 0
         assert len(frame.split) == tracers
-        heads = {t for t, y0, y1 in frame.split if y1 > y0}
+        heads = {t for t, u0, u1 in frame.split if u1 > u0}
         if any(r.kind == "tail" for r in frame.ranges):
             assert {r.tracer for r in frame.ranges} >= heads
         else:
             assert {r.tracer for r in frame.ranges} == heads
-        assert_covers(frame, 24)
+        assert_covers(frame)
         assert 0.0 <= frame.idle_percent < 100.0 and frame.wall_seconds > 0.0
         assert (frame.failures, frame.duplicates) == (0, 0)
 
@@ -374,10 +377,10 @@ def test_frames_with_a_dynamic_tail_equal_render_image(shared, tracers, pooled):
             frame = coordinator.render_frame(number, sample_start=sample_start)
             assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
             assert np.array_equal(frame.rays, reference_rays(graph.state, number, sample_start))
-            assert_covers(frame, 24)
+            assert_covers(frame)
             assert frame.pooled == pooled
             kinds = [r.kind for r in frame.ranges]
-            heads = sum(y1 > y0 for _, y0, y1 in frame.split)  # a slow tracer may get none
+            heads = sum(u1 > u0 for _, u0, u1 in frame.split)  # a slow tracer may get none
             assert kinds.count("split") == heads, kinds
             if pooled:  # one call per tracer; whoever is free claims the chunks
                 assert kinds.count("tail") >= 2 and frame.calls <= tracers, kinds
@@ -404,7 +407,7 @@ def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh, pooled
     assert [f.frame for f in frames] == list(range(16))
     for frame in frames:
         assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
-        assert_covers(frame, frame.rgb.shape[0])
+        assert_covers(frame)
     assert coordinator.stats["failures"] == 1
     assert any(
         (f.calls <= 2 if pooled else f.calls > 2)
@@ -461,9 +464,9 @@ def test_pool_chunks_a_lost_tracer_held_are_reassigned(fresh):
     assert frame.pooled and np.array_equal(frame.rgb, reference(graph.state, 4))
     assert frame.failures == 1 and frame.wall_seconds < 15.0
     assert {r.tracer for r in frame.ranges} == {"t0"}
-    reassigned = [(r.y0, r.y1) for r in frame.ranges if r.kind == "reassigned"]
-    for y0, y1 in held:  # every held line came back as a reassigned range
-        assert all(any(a <= y < b for a, b in reassigned) for y in range(y0, y1)), held
+    reassigned = [(r.u0, r.u1) for r in frame.ranges if r.kind == "reassigned"]
+    for u0, u1 in held:  # every held line came back as a reassigned range
+        assert all(any(a <= y < b for a, b in reassigned) for y in range(u0, u1)), held
 
 
 def test_pool_chunks_a_straggler_holds_are_duplicated(fresh):
@@ -479,9 +482,9 @@ def test_pool_chunks_a_straggler_holds_are_duplicated(fresh):
     assert time.perf_counter() - start < 2.0
     assert frame.pooled and np.array_equal(frame.rgb, reference(graph.state, 0))
     assert frame.duplicates == 1 and frame.failures == 0
-    copies = [(r.y0, r.y1) for r in frame.ranges if r.kind == "duplicate"]
-    for y0, y1 in held:
-        assert all(any(a <= y < b for a, b in copies) for y in range(y0, y1)), held
+    copies = [(r.u0, r.u1) for r in frame.ranges if r.kind == "duplicate"]
+    for u0, u1 in held:
+        assert all(any(a <= y < b for a, b in copies) for y in range(u0, u1)), held
 
 
 def pool_files() -> set[str]:
@@ -528,7 +531,7 @@ def test_chunks_of_a_pool_the_tracers_cannot_open_are_handed_out_in_calls(fresh,
     assert frame.pooled and np.array_equal(frame.rgb, reference(graph.state, 3))
     kinds = {r.kind for r in frame.ranges}
     assert "reassigned" in kinds and "tail" not in kinds, kinds
-    assert_covers(frame, 24)
+    assert_covers(frame)
     after = coordinator.render_frame(4)
     assert not after.pooled and np.array_equal(after.rgb, reference(graph.state, 4))
 
@@ -648,29 +651,37 @@ def test_large_commit_buffers_go_through_the_object_store(fresh):
 
 
 def test_the_assembler_takes_only_what_it_assigned():
-    """Results of another frame, version or range, or of the wrong shape, are refused; a range
-    delivered twice writes nothing new."""
-    assembler = Assembler(frame=3, version=7, width=4, height=6)
-    assembler.assign(0, 4)
-    assembler.assign(4, 6)
+    """Results of another frame, version, range or unit layout, or of the wrong shape, are
+    refused; units delivered twice are written once (the first delivery wins), also where a
+    copy overlaps two ranges."""
+    units = WorkUnits(4, 3, 2)  # 3 lines of 4 pixels, 6 units of 2 pixels
+    assembler = Assembler(frame=3, version=7, units=units)
+    for u0, u1 in [(0, 4), (4, 6), (3, 5)]:
+        assembler.assign(u0, u1)
 
-    def result(frame=3, version=7, y0=0, y1=4, value=1.0):
-        rgb = np.full((y1 - y0, 4, 3), value, np.float32)
-        cost = np.arange(y0, y1, dtype=np.int64)
-        return LinesResult("t", frame, version, y0, y1, rgb, cost, 0.1, 0.0, 1, "n", "i")
+    def result(frame=3, version=7, u0=0, u1=4, value=1.0, spans=2):
+        rgb = np.full((2 * (u1 - u0), 3), value, np.float32)
+        cost = np.arange(u0, u1, dtype=np.int64) + 1
+        return UnitsResult(
+            "t", frame, version, u0, u1, rgb, cost, 0.1, 0.0, 1, "n", "i", spans=spans
+        )
 
-    for stale in (result(frame=2), result(version=6), result(y0=1), result(y1=3)):
-        assert assembler.accept(stale) == -1
+    stale = [result(frame=2), result(version=6), result(u0=1), result(u1=3), result(spans=1)]
+    for refused in stale:
+        assert assembler.accept(refused) == -1
     bad = result()
-    bad.rgb = bad.rgb[:, :3]
+    bad.rgb = bad.rgb[:-1]
     assert assembler.accept(bad) == -1
-    assert assembler.rejected == 5 and not assembler.done.any()
+    assert assembler.rejected == 6 and not assembler.done.any()
     assert assembler.accept(result()) == 4
     assert assembler.accept(result(value=5.0)) == 0  # already written: first one wins
     assert assembler.missing() == [(4, 6)] and not assembler.complete
-    assert assembler.accept(result(y0=4, y1=6, value=2.0)) == 2
-    assert assembler.complete and assembler.rgb[:4].max() == 1.0 and assembler.rgb[4:].min() == 2
-    assert list(assembler.cost) == list(range(6))
+    assert assembler.accept(result(u0=3, u1=5, value=5.0)) == 1  # only unit 4 is new
+    assert assembler.accept(result(u0=4, u1=6, value=2.0)) == 1
+    pixels = assembler.rgb.reshape(-1, 3)[:, 0]
+    assert assembler.complete and list(pixels) == [1.0] * 8 + [5.0] * 2 + [2.0] * 2
+    assert list(assembler.cost) == [1, 2, 3, 4, 5, 6]
+    assert list(assembler.line_cost()) == [3, 7, 11]
 
 
 def test_an_unknown_balancer_is_refused_before_any_tracer_starts(local_ray):

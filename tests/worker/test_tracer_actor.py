@@ -17,7 +17,8 @@ from tracer.commit_codec import encode_commit, encode_state
 from tracer.compile import compile_scene
 from tracer.render import render_image
 from worker.line_pool import LinePool
-from worker.tracer_actor import MAX_SCENES, LinesResult, OutOfSync, Tracer, remote_tracer
+from worker.tracer_actor import MAX_SCENES, OutOfSync, Tracer, UnitsResult, remote_tracer
+from worker.work_units import WorkUnits
 
 MOVE = {"op": "set_transform", "node": "box-a", "transform": {"translate": [0.5, 1.2, 0.3]}}
 SKY = {"op": "set_sky", "radiance": [0.3, 0.2, 0.1]}
@@ -27,19 +28,28 @@ def reference(state, frame=0, sample_start=0) -> np.ndarray:
     return render_image(compile_scene(state), frame=frame, sample_start=sample_start)[0]
 
 
-def rendered(tracer, version, commits=(), frame=0, ranges=None, **kw) -> np.ndarray:
-    """The frame assembled from ``tracer.render`` calls over ``ranges`` (default one call)."""
-    height = studio().camera.height
+def rendered(tracer, version, commits=(), frame=0, ranges=None, spans=1, **kw) -> np.ndarray:
+    """The frame assembled from ``tracer.render`` calls over unit ``ranges`` (default one
+    call), ``spans`` units per line."""
+    camera = studio().camera
+    units = WorkUnits(camera.width, camera.height, spans)
     parts = []
-    for y0, y1 in ranges or [(0, height)]:
-        out = tracer.render(frame, version, list(commits), None, None, y0, y1, **kw)
-        assert isinstance(out, LinesResult), out
-        assert (out.frame, out.version, out.y0, out.y1) == (frame, version, y0, y1)
+    for u0, u1 in ranges or [(0, units.count)]:
+        out = tracer.render(frame, version, list(commits), None, None, u0, u1, spans=spans, **kw)
+        assert isinstance(out, UnitsResult), out
+        assert (out.frame, out.version, out.u0, out.u1, out.spans) == (
+            frame,
+            version,
+            u0,
+            u1,
+            spans,
+        )
+        p0, p1 = units.pixels(u0, u1)
         assert out.rgb.dtype == np.float32 and out.cost.dtype == np.int64
-        assert out.cost.shape == (y1 - y0,)
-        assert out.rays.shape == (y1 - y0,) and np.all(out.rays >= out.rgb.shape[1])
+        assert out.rgb.shape == (p1 - p0, 3) and out.cost.shape == (u1 - u0,)
+        assert out.rays.shape == (u1 - u0,) and np.all(out.rays >= units.sizes(u0, u1))
         parts.append(out.rgb)
-    return np.concatenate(parts)
+    return np.concatenate(parts).reshape(camera.height, camera.width, 3)
 
 
 # --- the plain class ------------------------------------------------------------------------
@@ -60,34 +70,54 @@ def test_tracer_renders_like_render_image():
     assert np.array_equal(rendered(one, 0, frame=5, ranges=split, sample_start=3), expected)
 
 
+def test_spans_of_lines_render_like_whole_lines():
+    """Units that are spans of lines (ranges starting and ending inside lines): the same
+    pixels, and per-unit cost and rays that sum to the lines'."""
+    state = studio()
+    tracer = Tracer("t", cpus=1)
+    tracer.sync_snapshot(encode_state(state))
+    expected = reference(state, frame=1)
+    units = WorkUnits(state.camera.width, state.camera.height, 8)
+    cuts = [(0, 5), (5, 6), (6, 61), (61, units.count)]
+    assert np.array_equal(rendered(tracer, 0, frame=1, ranges=cuts, spans=8), expected)
+    whole = tracer.render(1, 0, [], None, None, 0, state.camera.height)
+    spans = tracer.render(1, 0, [], None, None, 0, units.count, spans=8)
+    assert np.array_equal(units.per_line(spans.cost), whole.cost)
+    assert np.array_equal(units.per_line(spans.rays), whole.rays)
+
+
 def test_a_pooled_call_renders_its_range_then_every_chunk_it_claims():
-    """With a shared line pool the call renders its own range, then claims chunks until none
-    is left; each chunk's lines are render_image's and the pool records who took them. A call
+    """With a shared pool the call renders its own range, then claims chunks until none is
+    left; each chunk's pixels are render_image's and the pool records who took them. A call
     with no range of its own only claims; a pool that is gone gives no chunks."""
     state = studio()
     tracer = Tracer("t", cpus=1)
     tracer.sync_snapshot(encode_state(state))
-    expected = reference(state, frame=2)
+    expected = reference(state, frame=2).reshape(-1, state.camera.width, 3)
     pool = LinePool.create([(20, 24), (0, 3), (8, 9)])
     try:
         out = tracer.render(2, 0, [], None, None, 3, 8, pool=(pool.path, 5))
         assert pool.claimed(5) == [(20, 24), (0, 3), (8, 9)]
     finally:
         pool.unlink()
-    assert (out.y0, out.y1) == (3, 8) and np.array_equal(out.rgb, expected[3:8])
-    assert [(c.y0, c.y1) for c in out.more] == [(20, 24), (0, 3), (8, 9)]
+
+    def lines(a: int, b: int) -> np.ndarray:
+        return expected[a:b].reshape(-1, 3)
+
+    assert (out.u0, out.u1) == (3, 8) and np.array_equal(out.rgb, lines(3, 8))
+    assert [(c.u0, c.u1) for c in out.more] == [(20, 24), (0, 3), (8, 9)]
     for chunk in out.more:
-        assert np.array_equal(chunk.rgb, expected[chunk.y0 : chunk.y1])
-        assert chunk.cost.shape == chunk.rays.shape == (chunk.y1 - chunk.y0,)
+        assert np.array_equal(chunk.rgb, lines(chunk.u0, chunk.u1))
+        assert chunk.cost.shape == chunk.rays.shape == (chunk.u1 - chunk.u0,)
         assert chunk.seconds > 0.0 and chunk.apply_seconds == 0.0
     with LinePool.create([(9, 12)]) as second:
         only = tracer.render(2, 0, [], None, None, 4, 4, pool=(second.path, 0))
         second.unlink()
-    assert only.rgb.shape == (0, state.camera.width, 3) and only.cost.shape == (0,)
-    assert [(c.y0, c.y1) for c in only.more] == [(9, 12)]
-    assert np.array_equal(only.more[0].rgb, expected[9:12])
+    assert only.rgb.shape == (0, 3) and only.cost.shape == (0,)
+    assert [(c.u0, c.u1) for c in only.more] == [(9, 12)]
+    assert np.array_equal(only.more[0].rgb, lines(9, 12))
     late = tracer.render(2, 0, [], None, None, 0, 1, pool=(second.path, 0))
-    assert late.more is None and np.array_equal(late.rgb, expected[0:1])  # no pool here
+    assert late.more is None and np.array_equal(late.rgb, lines(0, 1))  # no pool here
 
 
 def test_commits_reach_exactly_the_version_asked_for():
@@ -118,7 +148,7 @@ def test_out_of_sync_says_what_it_holds():
     commits += [encode_commit(graph.commit([SKY])), encode_commit(graph.commit([MOVE]))]
     gap = tracer.render(0, 3, [commits[0], commits[2]], None, None, 0, 24)
     assert isinstance(gap, OutOfSync) and gap.have == 1 and "cannot apply" in gap.reason
-    assert isinstance(tracer.render(0, 3, commits, None, None, 0, 24), LinesResult)
+    assert isinstance(tracer.render(0, 3, commits, None, None, 0, 24), UnitsResult)
     dropped = tracer.render(0, 0, [], None, None, 0, 24)  # holds versions 2 and 3 only
     assert isinstance(dropped, OutOfSync) and dropped.have == 3
     repaired = rendered(tracer, 0, [], snapshot=snapshot_0)
@@ -195,12 +225,12 @@ def test_actor_renders_from_a_snapshot_in_the_object_store(ray_session):
         snapshot = ray.put(encode_state(graph.snapshot()))
         assert ray.get(actor.sync_snapshot.remote(snapshot)) == 0
         out = ray.get(actor.render.remote(2, 0, [], None, None, 0, 24, 0))
-        assert np.array_equal(out.rgb, expected)
+        assert np.array_equal(out.rgb, expected.reshape(-1, 3))
         assert out.pid != os.getpid()
         assert out.node == ray.get_runtime_context().get_node_id()
         commit = encode_commit(graph.commit([MOVE]))
         out = ray.get(actor.render.remote(2, 1, [commit], None, None, 0, 24, 0))
-        assert np.array_equal(out.rgb, reference(graph.state, frame=2))
+        assert np.array_equal(out.rgb, reference(graph.state, frame=2).reshape(-1, 3))
         assert ray.get(actor.version.remote()) == 1
     finally:
         ray.kill(actor)
@@ -255,6 +285,6 @@ def test_a_restarted_actor_comes_back_empty_and_says_so(ray_session):
         assert isinstance(out, OutOfSync) and out.have is None
         snapshot = ray.put(encode_state(state))
         out = ray.get(actor.render.remote(0, 0, [], None, None, 0, 24, 0, snapshot))
-        assert np.array_equal(out.rgb, reference(state))
+        assert np.array_equal(out.rgb, reference(state).reshape(-1, 3))
     finally:
         ray.kill(actor)
