@@ -192,6 +192,9 @@ def test_frames_equal_render_image(shared, tracers, balancer):
         assert frame.rgb.dtype == np.float32 and frame.rgb.shape == (24, 32, 3)
         assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
         assert frame.cost.shape == (24,) and frame.cost.min() > 0
+        # Several tracers on 24 lines: each line is cut into 4 spans of 8 pixels.
+        assert frame.units == WorkUnits(32, 24, 1 if tracers == 1 else 4)
+        assert np.array_equal(frame.units.per_line(frame.unit_cost), frame.cost)
         assert len(frame.split) == tracers
         heads = {t for t, u0, u1 in frame.split if u1 > u0}
         if any(r.kind == "tail" for r in frame.ranges):
