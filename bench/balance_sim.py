@@ -481,6 +481,11 @@ def run_calls(args, factories: dict, jitter_sigma: float, lag: int) -> dict:
     return results
 
 
+def spans_text(spans: int) -> str:
+    """``1 span``, ``4 spans``."""
+    return f"{spans} span{'' if spans == 1 else 's'}"
+
+
 def spans_headers(results: dict) -> tuple[list[str], bool]:
     """Column headers ``T=<label> (<spans> spans)`` of ``{orbit: {label: entry}}``, and whether
     every column's spans are the same on every orbit (else the tables show a row of them per
@@ -490,12 +495,12 @@ def spans_headers(results: dict) -> tuple[list[str], bool]:
     uniform = all(len(s) == 1 for s in spans.values())
     if not uniform:
         return [f"T={k}" for k in labels], False
-    return [f"T={k} ({next(iter(spans[k]))} spans)" for k in labels], True
+    return [f"T={k} ({spans_text(next(iter(spans[k])))})" for k in labels], True
 
 
 def spans_row(orbit: str, by_label: dict) -> list[str]:
     """A table row with the spans per line and the units of each scenario of ``orbit``."""
-    cells = [f"{e['spans']} spans, {e['units']} units" for e in by_label.values()]
+    cells = [f"{spans_text(e['spans'])}, {e['units']} units" for e in by_label.values()]
     return [f"{orbit} spans a line", *cells]
 
 
@@ -670,7 +675,7 @@ def plot(results: dict, path: Path, jitter: str) -> bool:
                 ax.plot(data["per_frame"], label=name, linewidth=0.8, **style)
             ax.set_yscale("symlog", linthresh=1.0)
             ax.set_ylim(0, 100)
-            size = f"{entry['lines']} lines x {entry['spans']} spans"
+            size = f"{entry['lines']} lines x {spans_text(entry['spans'])}"
             ax.set_title(f"{orbit}, T={label} ({size}; {jitter})", fontsize=9)
             ax.tick_params(labelsize=7)
             if c == 0:
