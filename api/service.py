@@ -676,7 +676,7 @@ class RenderService:
         rays = int(frame.rays.sum()) if frame.rays is not None else 0
         per_tracer = {
             tid: {
-                "lines": round(lines.get(tid, 0.0), 3),
+                "lines": round(lines.get(tid, 0.0), 6),  # exact: spans are powers of two
                 "seconds": round(busy.get(tid, 0.0), 6),
                 "lines_per_second": round(lines.get(tid, 0) / busy[tid], 2)
                 if busy.get(tid)

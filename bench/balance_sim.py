@@ -183,11 +183,12 @@ def simulate(
     jitter: np.ndarray,
     overhead: float,
     lag: int = 0,
+    spans: int = 1,
 ) -> np.ndarray:
-    """Idle % of every frame of ``cost`` (frames, units) for ``balancer`` (or ``ORACLE``) and
-    tracers of absolute ``speeds`` (cost units per second), ``jitter`` (frames, T). With
-    ``lag`` k, frame f is split before frames f-k..f-1 are observed (a pipelined
-    coordinator: k = 1)."""
+    """Idle % of every frame of ``cost`` (frames, units; ``spans`` units per line) for
+    ``balancer`` (or ``ORACLE``) and tracers of absolute ``speeds`` (cost units per second),
+    ``jitter`` (frames, T). With ``lag`` k, frame f is split before frames f-k..f-1 are
+    observed (a pipelined coordinator: k = 1)."""
     frames, height = cost.shape
     ids = [f"t{i:03d}" for i in range(speeds.size)]
     idle = np.empty(frames)
@@ -199,7 +200,7 @@ def simulate(
             edges = min_max_cuts(np.maximum(unit_cost, floor), speeds)
             ranges = list(itertools.pairwise(edges))
         else:
-            ranges = balancer.split(height, ids)
+            ranges = balancer.split(height, ids, spans=spans)
         seconds = np.zeros(speeds.size)
         reports = []
         for i, (y0, y1) in enumerate(ranges):
@@ -211,7 +212,7 @@ def simulate(
         if balancer != ORACLE:
             pending.append(reports)
             while len(pending) > lag:
-                balancer.observe(height, pending.pop(0))
+                balancer.observe(height, pending.pop(0), spans=spans)
         idle[f] = idle_percent(seconds)
     return idle
 
@@ -226,10 +227,11 @@ def simulate_calls(
     gap: float,
     lag: int = 0,
     claim: float | None = None,
+    spans: int = 1,
 ) -> dict[str, np.ndarray]:
-    """Every frame of ``cost`` as the coordinator runs it, call by call (:func:`frame_calls`),
-    or with ``claim`` (seconds per chunk) as tracers sharing one machine run it, the tail in a
-    shared unit pool (:func:`frame_pool`).
+    """Every frame of ``cost`` (``spans`` units per line) as the coordinator runs it, call by
+    call (:func:`frame_calls`), or with ``claim`` (seconds per chunk) as tracers sharing one
+    machine run it, the tail in a shared unit pool (:func:`frame_pool`).
     Returns per frame: ``idle`` (Table 16's measure with the gaps between a tracer's calls
     counted as idle: every tracer's window runs from its first render to the latest end of
     any), ``span_idle`` (from the first send to the last result: latency included), ``wall``
@@ -240,8 +242,11 @@ def simulate_calls(
     pending: list[list[TracerReport]] = []
     pooled = claim is not None
     for f in range(frames):
-        plan = balancer.plan(height, ids, pooled=pooled) if hasattr(balancer, "plan") else None
-        heads = plan.heads if plan is not None else balancer.split(height, ids)
+        if hasattr(balancer, "plan"):
+            plan = balancer.plan(height, ids, pooled=pooled, spans=spans)
+            heads = plan.heads
+        else:
+            plan, heads = None, balancer.split(height, ids, spans=spans)
         times = speeds / jitter[f]  # this frame's speeds
         if pooled and plan is not None:
             chunks = plan.take_all()
@@ -254,7 +259,7 @@ def simulate_calls(
             out[key][f] = value
         pending.append(reports)
         while len(pending) > lag:
-            balancer.observe(height, pending.pop(0))
+            balancer.observe(height, pending.pop(0), spans=spans)
     return out
 
 
@@ -437,7 +442,8 @@ def run(args, factories: dict, jitter_sigma: float, lag: int, keep_frames: bool)
         }
         for name, factory in factories.items():
             balancer = ORACLE if factory == ORACLE else factory()
-            idle = simulate(balancer, sc.cost, sc.speeds, sc.jitter, args.overhead_ms * 1e-3, lag)
+            overhead = args.overhead_ms * 1e-3
+            idle = simulate(balancer, sc.cost, sc.speeds, sc.jitter, overhead, lag, sc.spans)
             entry["balancers"][name] = summarise(idle)
             if keep_frames:
                 entry["balancers"][name]["per_frame"] = np.round(idle, 2)
@@ -469,6 +475,7 @@ def run_calls(args, factories: dict, jitter_sigma: float, lag: int) -> dict:
                 args.call_gap_ms * 1e-3,
                 lag,
                 None if args.pool_claim_ms is None else args.pool_claim_ms * 1e-3,
+                sc.spans,
             )
             entry["balancers"][name] = {
                 "idle": float(out["idle"].mean()),

@@ -53,6 +53,7 @@ from cluster.connect import connect, disconnect
 from cluster.coordinator import Coordinator
 from cluster.scene_graph import SceneGraph
 from tracer.loader import load_scene
+from worker.work_units import WorkUnits
 
 CORNELL = REPO_ROOT / "scenes" / "cornell-box" / "scene.json"
 SETUPS = {
@@ -104,15 +105,19 @@ class HindsightSplit:
     tracer's speed averaged over every frame seen so far. The idle it leaves is what timing
     noise alone costs on this machine: a floor for every balancer."""
 
-    def __init__(self, costs: list[np.ndarray]) -> None:
+    def __init__(self, costs: list[tuple[WorkUnits, np.ndarray]]) -> None:
         self.costs = costs
+        """(units, cost per unit) of every frame, in order."""
         self.calls = 0
         self.work: dict[str, float] = {}
         self.seconds: dict[str, float] = {}
 
-    def split(self, height: int, tracer_ids: list[str]) -> list[tuple[int, int]]:
-        cost = self.costs[min(self.calls, len(self.costs) - 1)].astype(np.float64)
+    def split(self, height: int, tracer_ids: list[str], spans: int = 1) -> list[tuple[int, int]]:
+        units, cost = self.costs[min(self.calls, len(self.costs) - 1)]
         self.calls += 1
+        cost = cost.astype(np.float64)
+        if cost.size != height:  # another layout (a tracer sat the frame out): lines spread
+            cost = np.repeat(units.per_line(cost) / spans, spans)
         known = [self.work[t] / self.seconds[t] for t in tracer_ids if self.seconds.get(t)]
         mean = statistics.fmean(known) if known else 1.0
         speeds = [
@@ -121,7 +126,7 @@ class HindsightSplit:
         cost = np.maximum(cost, CostAware.FLOOR * max(cost.mean(), 1e-300))
         return list(itertools.pairwise(min_max_cuts(cost, speeds)))
 
-    def observe(self, height: int, reports: list[TracerReport]) -> None:
+    def observe(self, height: int, reports: list[TracerReport], spans: int = 1) -> None:
         for r in reports:
             if r.y1 > r.y0 and r.seconds > 0:  # a TracerReport: the balancer's lines
                 self.work[r.tracer] = self.work.get(r.tracer, 0.0) + float(r.line_cost.sum())
@@ -159,7 +164,7 @@ def idle_real(
     for orbit in ("slow", "fast"):
         degrees = ORBITS[orbit][0]
         cameras = [orbit_camera(degrees * k / frames, width, height) for k in range(frames)]
-        recorded: list[np.ndarray] = []
+        recorded: list[tuple[WorkUnits, np.ndarray]] = []
         coordinators = {}
         try:
             for name in names:
@@ -173,7 +178,7 @@ def idle_real(
             for name, c in coordinators.items():  # warm-up frame
                 warm = c.render_frame(camera=cameras[0], settings=settings)
                 if name == names[0]:
-                    recorded.append(warm.unit_cost)
+                    recorded.append((warm.units, warm.unit_cost))
             if sequential:
                 order = [(k, name) for name in names for k in range(frames)]
             else:
@@ -183,7 +188,7 @@ def idle_real(
                 frame = c.render_frame(frame=k, camera=cameras[k], settings=settings)
                 done[name].append(frame)
                 if name == names[0]:
-                    recorded.append(frame.unit_cost)
+                    recorded.append((frame.units, frame.unit_cost))
         finally:
             for c in coordinators.values():
                 c.close()

@@ -53,15 +53,16 @@ class Balancer:
 
     name = "none"
 
-    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
+    def split(self, height: int, tracers: Sequence[str], spans: int = 1) -> list[LineRange]:
         """Contiguous ranges, one per tracer in order, covering [0, height). A tracer may get
-        an empty range when there are more tracers than lines."""
-        _check_split_args(height, tracers)
+        an empty range when there are more tracers than lines. ``spans``: the frame's lines
+        are spans of its image lines, this many per image line (``worker.work_units``)."""
+        _check_split_args(height, tracers, spans)
         return even_split(height, len(tracers))
 
-    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
+    def observe(self, height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:
         """Learn from a finished frame (reports in tracer order)."""
-        _check_reports(height, reports)
+        _check_reports(height, reports, spans)
 
 
 def even_split(height: int, parts: int) -> list[LineRange]:
@@ -89,17 +90,24 @@ def idle_percent(seconds: Sequence[float]) -> float:
 # --- shared helpers ----------------------------------------------------------------------------
 
 
-def _check_split_args(height: int, tracers: Sequence[str]) -> None:
+def _check_split_args(height: int, tracers: Sequence[str], spans: int = 1) -> None:
     if height < 0:
         raise ValueError(f"height must be non-negative, not {height}")
+    _check_spans(height, spans)
     if len(tracers) < 1:
         raise ValueError("a split needs at least one tracer")
     if len(set(tracers)) != len(tracers):
         raise ValueError("tracer ids must be distinct")
 
 
-def _check_reports(height: int, reports: Sequence[TracerReport]) -> None:
+def _check_spans(height: int, spans: int) -> None:
+    if spans < 1 or height % spans:
+        raise ValueError(f"{height} lines are not whole image lines of {spans} spans each")
+
+
+def _check_reports(height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:
     """Reject reports that cannot describe a frame of ``height`` lines."""
+    _check_spans(height, spans)
     for r in reports:
         if not 0 <= r.y0 <= r.y1 <= height:
             raise ValueError(f"tracer {r.tracer!r}: range [{r.y0}, {r.y1}) not in [0, {height})")
@@ -237,31 +245,27 @@ class RobinHood(Balancer):
         if unit is not None and unit < 1:
             raise ValueError("unit must be at least one line")
         self.unit = unit
-        self._lines: dict[str, int] = {}
+        self._share: dict[str, float] = {}  # fractions of the frame: the same in any layout
 
-    def unit_lines(self, height: int) -> int:
-        """Lines moved per frame in a frame of ``height`` lines."""
+    def unit_lines(self, height: int, spans: int = 1) -> int:
+        """Lines moved per frame in a frame of ``height`` lines (``unit`` image lines are
+        ``unit * spans`` of them)."""
         if self.unit is not None:
-            return self.unit
+            return self.unit * spans
         return max(1, round(height * self.UNIT_FRACTION))
 
-    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
-        _check_split_args(height, tracers)
-        if not any(t in self._lines for t in tracers):
+    def split(self, height: int, tracers: Sequence[str], spans: int = 1) -> list[LineRange]:
+        _check_split_args(height, tracers, spans)
+        if not any(t in self._share for t in tracers):
             return even_split(height, len(tracers))
-        counts = _fill_unknown({t: float(n) for t, n in self._lines.items()}, tracers)
-        if counts.sum() == height and all(t in self._lines for t in tracers):
-            sizes = counts.astype(np.int64)
-        else:
-            sizes = _apportion(height, counts)
+        sizes = _apportion(height, _fill_unknown(self._share, tracers))
         return ranges_from_edges(np.concatenate(([0], np.cumsum(sizes))))
 
-    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
-        _check_reports(height, reports)
-        if not reports:
+    def observe(self, height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:
+        _check_reports(height, reports, spans)
+        if not reports or height == 0:
             return
-        for r in reports:
-            self._lines[r.tracer] = r.y1 - r.y0
+        lines = {r.tracer: r.y1 - r.y0 for r in reports}
         timed = [i for i, r in enumerate(reports) if math.isfinite(r.seconds)]
         if not timed:
             return
@@ -269,9 +273,11 @@ class RobinHood(Balancer):
         first = min(timed, key=lambda i: reports[i].seconds)
         if reports[last].seconds <= reports[first].seconds:
             return  # everyone finished together
-        give = min(self.unit_lines(height), self._lines[reports[last].tracer])
-        self._lines[reports[last].tracer] -= give
-        self._lines[reports[first].tracer] += give
+        give = min(self.unit_lines(height, spans), lines[reports[last].tracer])
+        lines[reports[last].tracer] -= give
+        lines[reports[first].tracer] += give
+        for tracer, count in lines.items():
+            self._share[tracer] = count / height
 
 
 def _apportion(height: int, weights: np.ndarray) -> np.ndarray:
@@ -280,7 +286,7 @@ def _apportion(height: int, weights: np.ndarray) -> np.ndarray:
     w = np.maximum(np.asarray(weights, dtype=np.float64), 0.0)
     if w.sum() <= 0.0:
         w = np.ones_like(w)
-    exact = height * w / w.sum()
+    exact = np.round(height * w / w.sum(), 9)  # whole counts stay whole
     sizes = np.floor(exact).astype(np.int64)
     short = height - int(sizes.sum())
     order = np.argsort(-(exact - sizes), kind="stable")
@@ -293,7 +299,8 @@ def _apportion(height: int, weights: np.ndarray) -> np.ndarray:
 
 class Perfect(Balancer):
     """Each tracer's share from its speed in the previous frame, in lines per second:
-    ``s_i = L_i / t_i`` and ``L_i' = H * s_i / sum_j s_j`` (cut at rounded cumulative shares).
+    ``s_i = L_i / t_i`` and ``L_i' = H * s_i / sum_j s_j`` (cut at rounded cumulative shares;
+    speeds are kept as fractions of the frame per second, the same in any frame size).
     Differences in cost between lines are ignored, so a tracer that drew cheap lines looks fast
     and is overloaded next frame (Bikker's "hick-ups").
 
@@ -303,21 +310,21 @@ class Perfect(Balancer):
     name = "perfect"
 
     def __init__(self) -> None:
-        self._speed: dict[str, float] = {}  # lines per second, last measurement
+        self._speed: dict[str, float] = {}  # frames per second, last measurement
 
-    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
-        _check_reports(height, reports)
+    def observe(self, height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:
+        _check_reports(height, reports, spans)
         for r in reports:
             if r.y1 > r.y0 and _usable(r.seconds):
-                self._speed[r.tracer] = (r.y1 - r.y0) / r.seconds
+                self._speed[r.tracer] = (r.y1 - r.y0) / height / r.seconds
 
     def target_shares(self, tracers: Sequence[str]) -> np.ndarray:
         """Fractions of the frame (summing to one) ``perfect`` would give ``tracers``."""
         speeds = _fill_unknown(self._speed, tracers)
         return speeds / speeds.sum()
 
-    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
-        _check_split_args(height, tracers)
+    def split(self, height: int, tracers: Sequence[str], spans: int = 1) -> list[LineRange]:
+        _check_split_args(height, tracers, spans)
         if not any(t in self._speed for t in tracers):
             return even_split(height, len(tracers))
         return proportional_split(height, self.target_shares(tracers))
@@ -346,15 +353,19 @@ class PerfectSmooth(Perfect):
         self.alpha = alpha
         self._share: dict[str, float] = {}
 
-    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
-        super().observe(height, reports)
+    def observe(self, height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:
+        super().observe(height, reports, spans)
         tracers = [r.tracer for r in reports]
         if not tracers or not any(t in self._speed for t in tracers):
             return
         target = self.target_shares(tracers)
         old = self._normalised(tracers, target)
+        # Shares of the tracers seen keep their total, so a tracer that sat this frame out
+        # keeps its share relative to them.
+        known = [self._share[t] for t in tracers if t in self._share]
+        total = float(np.mean(known)) * len(tracers) if known else 1.0
         for t, f, g in zip(tracers, target, old, strict=True):
-            self._share[t] = (1.0 - self.alpha) * g + self.alpha * f
+            self._share[t] = total * ((1.0 - self.alpha) * g + self.alpha * f)
 
     def _normalised(self, tracers: Sequence[str], fallback: np.ndarray) -> np.ndarray:
         """Current shares of ``tracers`` summing to one. An id without a share takes the mean
@@ -364,10 +375,10 @@ class PerfectSmooth(Perfect):
         shares = _fill_unknown(self._share, tracers)
         return shares / shares.sum()
 
-    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
-        _check_split_args(height, tracers)
+    def split(self, height: int, tracers: Sequence[str], spans: int = 1) -> list[LineRange]:
+        _check_split_args(height, tracers, spans)
         if not any(t in self._share for t in tracers):
-            return super().split(height, tracers)
+            return super().split(height, tracers, spans)
         return proportional_split(height, self._normalised(tracers, self.target_shares(tracers)))
 
 
@@ -462,11 +473,11 @@ class CostAware(Balancer):
 
     # The profile -------------------------------------------------------------------------------
 
-    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
-        _check_reports(height, reports)
+    def observe(self, height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:
+        _check_reports(height, reports, spans)
         for r in reports:
             self._observe_speed(r.tracer, float(np.sum(r.line_cost)), r.seconds)
-        self._observe_profile(height, reports)
+        self._observe_profile(height, reports, spans)
 
     def _observe_speed(self, tracer: str, spent: float, seconds: float) -> None:
         """One smoothing step of ``tracer``'s cost and seconds (skipped without cost or a
@@ -477,7 +488,9 @@ class CostAware(Balancer):
         g = max(self.speed_alpha, 1.0 / (count + 1))  # plain means until 1/gamma frames
         self._work[tracer] = ((1 - g) * work + g * spent, (1 - g) * time + g * seconds, count + 1)
 
-    def _observe_profile(self, height: int, reports: Sequence[TracerReport]) -> None:
+    def _observe_profile(
+        self, height: int, reports: Sequence[TracerReport], spans: int = 1
+    ) -> None:
         """Score the forecasters against the frame's line costs, then update them."""
         if height == 0 or not reports:
             return
@@ -490,18 +503,21 @@ class CostAware(Balancer):
             return
         known = self._predictors[0].level is not None
         if not seen.all():  # lines nobody reported: keep the forecast, else the mean
-            cost[~seen] = self.predicted_profile(height)[~seen] if known else cost[seen].mean()
+            predicted = self.predicted_profile(height, spans)[~seen] if known else None
+            cost[~seen] = cost[seen].mean() if predicted is None else predicted
         if known and cost.sum() > 0.0:
             actual = _cumulative_fraction(cost)
             for p in self._predictors:
-                miss = float(np.max(np.abs(_cumulative_fraction(self._shape(p, height)) - actual)))
+                shape = _cumulative_fraction(self._shape(p, height, spans))
+                miss = float(np.max(np.abs(shape - actual)))
                 p.error = miss if p.error is None else p.error + self.error_alpha * (miss - p.error)
         for p in self._predictors:
-            p.update(cost)
+            p.update(cost, spans)
 
-    def _shape(self, forecaster: "_Forecaster", height: int) -> np.ndarray:
-        """``forecaster``'s prediction for ``height`` lines, blurred and floored."""
-        p = _box_blur(forecaster.forecast(height), self.blur)
+    def _shape(self, forecaster: "_Forecaster", height: int, spans: int = 1) -> np.ndarray:
+        """``forecaster``'s prediction for ``height`` lines (``spans`` per image line),
+        blurred and floored."""
+        p = _box_blur(forecaster.forecast(height, spans), self.blur, spans)
         mean = float(p.mean())
         if not mean > 0.0:
             return np.ones(height)
@@ -514,11 +530,12 @@ class CostAware(Balancer):
         scores = [math.inf if p.error is None else p.error for p in self._predictors]
         return int(np.argmin(scores))
 
-    def predicted_profile(self, height: int) -> np.ndarray:
-        """Predicted cost of each of ``height`` lines next frame (float64, all positive)."""
+    def predicted_profile(self, height: int, spans: int = 1) -> np.ndarray:
+        """Predicted cost of each of ``height`` lines (``spans`` per image line) next frame
+        (float64, all positive)."""
         if self._predictors[0].level is None or height == 0:
             return np.ones(height)
-        return self._shape(self._predictors[self.chosen], height)
+        return self._shape(self._predictors[self.chosen], height, spans)
 
     # Speeds and the cut ------------------------------------------------------------------------
 
@@ -527,48 +544,55 @@ class CostAware(Balancer):
         known = {t: work / time for t, (work, time, _) in self._work.items()}
         return _fill_unknown(known, tracers)
 
-    def split(self, height: int, tracers: Sequence[str]) -> list[LineRange]:
-        _check_split_args(height, tracers)
+    def split(self, height: int, tracers: Sequence[str], spans: int = 1) -> list[LineRange]:
+        _check_split_args(height, tracers, spans)
         if height == 0:
             return [(0, 0)] * len(tracers)
-        edges = min_max_cuts(self.predicted_profile(height), self.speeds(tracers))
+        edges = min_max_cuts(self.predicted_profile(height, spans), self.speeds(tracers))
         return ranges_from_edges(edges)
 
 
 class _Forecaster:
     """Holt's linear exponential smoothing of a per-line cost profile with a damped trend
     (Gardner): level weight ``a``, trend weight ``b`` (``b = 0``: a moving average), damping
-    ``phi``; ``error`` is its running score."""
+    ``phi``; ``error`` is its running score. Its profile has ``spans`` lines per image line."""
 
     def __init__(self, a: float, b: float, phi: float) -> None:
         self.a, self.b, self.phi = a, b, phi
         self.level: np.ndarray | None = None
         self.trend: np.ndarray | None = None
+        self.spans = 1
         self.error: float | None = None
 
-    def forecast(self, height: int) -> np.ndarray:
-        """``max(level + phi trend, 0)``, resampled to ``height`` lines."""
+    def forecast(self, height: int, spans: int = 1) -> np.ndarray:
+        """``max(level + phi trend, 0)``, resampled to ``height`` lines of ``spans`` per image
+        line."""
         assert self.level is not None and self.trend is not None
-        return np.maximum(_resample(self.level + self.phi * self.trend, height), 0.0)
+        profile = self.level + self.phi * self.trend
+        return np.maximum(_resample(profile, height, self.spans, spans), 0.0)
 
-    def update(self, cost: np.ndarray) -> None:
+    def update(self, cost: np.ndarray, spans: int = 1) -> None:
         if self.level is None or self.trend is None:
-            self.level, self.trend = cost.copy(), np.zeros_like(cost)
+            self.level, self.trend, self.spans = cost.copy(), np.zeros_like(cost), spans
             return
-        level, trend = _resample(self.level, cost.size), _resample(self.trend, cost.size)
+        level = _resample(self.level, cost.size, self.spans, spans)
+        trend = _resample(self.trend, cost.size, self.spans, spans)
         new = self.a * cost + (1.0 - self.a) * (level + self.phi * trend)
         self.trend = self.b * (new - level) + (1.0 - self.b) * self.phi * trend
-        self.level = new
+        self.level, self.spans = new, spans
 
 
-def _box_blur(values: np.ndarray, radius: int) -> np.ndarray:
-    """Mean of ``values[y - radius : y + radius + 1]`` (clipped to the array) for every y."""
-    if radius <= 0 or values.size < 2:
+def _box_blur(values: np.ndarray, radius: int, spans: int = 1) -> np.ndarray:
+    """Every line's mean over ``2 radius + 1`` image lines (clipped to the frame): with
+    ``spans`` lines per image line, over the same span of the image lines around it."""
+    lines = values.size // spans
+    if radius <= 0 or lines < 2:
         return values
-    prefix = np.concatenate(([0.0], np.cumsum(values)))
-    y = np.arange(values.size)
-    lo, hi = np.maximum(y - radius, 0), np.minimum(y + radius + 1, values.size)
-    return (prefix[hi] - prefix[lo]) / (hi - lo)
+    grid = values.reshape(lines, spans)
+    prefix = np.concatenate((np.zeros((1, spans)), np.cumsum(grid, axis=0)))
+    y = np.arange(lines)
+    lo, hi = np.maximum(y - radius, 0), np.minimum(y + radius + 1, lines)
+    return ((prefix[hi] - prefix[lo]) / (hi - lo)[:, None]).reshape(-1)
 
 
 def _cumulative_fraction(cost: np.ndarray) -> np.ndarray:
@@ -577,14 +601,29 @@ def _cumulative_fraction(cost: np.ndarray) -> np.ndarray:
     return prefix / prefix[-1]
 
 
-def _resample(profile: np.ndarray, height: int) -> np.ndarray:
-    """``profile`` (cost per line) stretched to ``height`` lines, total cost kept: the prefix
-    sum is interpolated at the new line boundaries."""
-    if profile.size == height:
+def _resample(profile: np.ndarray, height: int, spans_from: int = 1, spans: int = 1) -> np.ndarray:
+    """``profile`` (cost per line, ``spans_from`` lines per image line) resampled to ``height``
+    lines of ``spans`` per image line, total cost kept: the spans of every image line, then
+    the image lines of every span, stretched through their prefix sums."""
+    if profile.size == height and spans_from == spans:
         return profile
-    prefix = np.concatenate(([0.0], np.cumsum(profile)))
-    at = np.linspace(0.0, profile.size, height + 1)
-    return np.diff(np.interp(at, np.arange(profile.size + 1), prefix))
+    grid = _stretch(profile.reshape(-1, spans_from), spans, axis=1)
+    return _stretch(grid, height // spans, axis=0).reshape(-1)
+
+
+def _stretch(values: np.ndarray, size: int, axis: int) -> np.ndarray:
+    """``values`` stretched to ``size`` entries along ``axis``, each row's total kept: its
+    prefix sum interpolated linearly at the new boundaries."""
+    count = values.shape[axis]
+    if count == size:
+        return values
+    rows = np.moveaxis(values, axis, -1)
+    prefix = np.concatenate((np.zeros((*rows.shape[:-1], 1)), np.cumsum(rows, axis=-1)), axis=-1)
+    at = np.linspace(0.0, count, size + 1)
+    left = np.minimum(at.astype(np.int64), count - 1)
+    frac = at - left
+    sums = prefix[..., left] * (1.0 - frac) + prefix[..., left + 1] * frac
+    return np.moveaxis(np.diff(sums, axis=-1), -1, axis)
 
 
 # --- cost-aware with a dynamic tail -------------------------------------------------------------
@@ -594,9 +633,11 @@ class CostAwareTail(CostAware):
     """``cost-aware`` with a dynamic tail (module docstring). ``split`` is the plain cost-aware
     partition (for callers that need one range per tracer); ``plan`` gives heads and a tail.
 
-    The tail's share follows how well heads were predicted: ``Z`` times the root mean square
+    The tail's share follows how well heads were predicted: ``z`` times the root mean square
     of the heads' relative time errors (``seconds / predicted - 1``, smoothed over frames with
-    weight ``ERROR_ALPHA``), between ``MIN_TAIL`` and ``MAX_TAIL``; ``FIRST_TAIL`` while
+    weight ``ERROR_ALPHA``), between ``MIN_TAIL`` and ``MAX_TAIL``, where ``z`` is ``Z`` or,
+    with many tracers, ``sqrt(2 ln T)`` (about the largest of T normal draws: the tail must
+    absorb the overrun of the slowest of T heads, not of a typical one); ``FIRST_TAIL`` while
     nothing is known (the first frame is an even split of unknown costs). No tail when that
     error, in seconds, is worth fewer than ``CALLS_WORTH`` calls, nor with fewer than
     ``MIN_LINES`` lines per tracer. ``fraction`` fixes the heads' share instead (the lines rule
@@ -604,9 +645,10 @@ class CostAwareTail(CostAware):
 
     A ``pooled`` plan (every tracer shares the coordinator's machine, so the tail goes to a
     shared line pool: :mod:`worker.line_pool`) always keeps a tail of at least
-    ``POOL_MIN_TAIL`` (a claim costs microseconds, not a Ray call, so no error is too small to
-    be worth it) as long as there are ``POOL_MIN_LINES`` lines per tracer, and cuts chunks down
-    to ``POOL_MIN_SECONDS`` of predicted work (and one line). ``call_tail=False`` gives
+    ``POOL_MIN_TAIL`` and at most ``POOL_MAX_TAIL`` (a claim costs microseconds, not a Ray
+    call, so no error is too small to be worth it) as long as there are ``POOL_MIN_LINES``
+    lines per tracer, and cuts chunks down to ``POOL_MIN_SECONDS`` of predicted work (and one
+    line), sized for the slowest tracer (``TailPlan.take_all``). ``call_tail=False`` gives
     plans without a pool no tail at all (``cost-aware``).
 
     ``observe`` takes any number of reports per tracer (heads and chunks): the profile from
@@ -637,10 +679,12 @@ class CostAwareTail(CostAware):
     static split idles about half that error, a tail costs at least one more call per tracer
     and its last chunks' mismatch (simulator: ``bench/balance_sim.py --calls``)."""
     MIN_LINES = 16
-    """No tail with fewer lines per tracer: a chunk is at least a line, and where one dear line
-    is a large part of a tracer's frame, a chunk queued on a slow tracer at the end costs
-    more than the tail saves (simulator: 8-128 tracers on 96 lines, 128 on 480)."""
-    HEADS_KEPT = 64
+    """No tail with fewer image lines per tracer: where a tracer's share is a few lines, a
+    chunk queued on a slow tracer at the end costs more than the tail saves (simulator:
+    8-128 tracers on 96 lines, 128 on 480)."""
+    HEADS_KEPT = 4
+    """Frames of head predictions kept (pipelined frames are planned before the ones before
+    them are observed)."""
     POOL_MIN_SECONDS = 0.0002
     """Least pooled chunk in predicted seconds: the last chunk is what the other tracer may
     wait for (0.2 ms against 0.5 and 1 ms: 1.06, 1.17 and 1.44% idle, 640x480, two tracers)."""
@@ -648,6 +692,11 @@ class CostAwareTail(CostAware):
     """Least pooled tail: a tracer's speed varies 4-9% from frame to frame on a shared machine
     and a pooled tail costs little more than its chunks (10% against 5%: median idle 0.76
     against 1.02%)."""
+    POOL_MAX_TAIL = 0.30
+    """Most pooled tail: with 128 tracers at 5% timing noise the heads' rms error is about
+    6%, and ``sqrt(2 ln 128) = 3.1`` times that is 18% (simulator, ``bench/balance_sim.py
+    --calls --pool``: a 30% cap against 15% gives 1.48 against 3.82% idle on the fast orbit,
+    1.22-1.34 against 2.00-2.18 on two other seeds)."""
     POOL_MIN_LINES = 2
     """No pooled tail with fewer lines per tracer (nothing queues behind a pooled chunk)."""
 
@@ -678,15 +727,18 @@ class CostAwareTail(CostAware):
         self.call_seconds = call_seconds
         self.calls_worth = calls_worth
         self.min_lines = min_lines
-        # Predicted seconds of heads not observed yet, oldest first per (tracer, y0, y1): with
-        # the pipeline, frame N+1 may get the same head as frame N before N is observed.
-        self._heads: dict[tuple[str, int, int], deque[float]] = {}
+        # Predicted seconds of heads not observed yet, oldest first per (tracer, height, spans,
+        # y0, y1): with the pipeline, frame N+1 may get the same head as frame N before N is
+        # observed.
+        self._heads: dict[tuple[str, int, int, int, int], deque[float]] = {}
         self._error2: float | None = None  # smoothed squared relative error of heads
 
-    def head_fraction(self, frame_seconds: float = math.inf, pooled: bool = False) -> float:
-        """Share of each tracer's predicted cost sent as its head, for a frame predicted to
-        take ``frame_seconds``: everything when the heads' error is too small to pay for the
-        calls a tail costs (never for a ``pooled`` tail)."""
+    def head_fraction(
+        self, frame_seconds: float = math.inf, pooled: bool = False, tracers: int = 2
+    ) -> float:
+        """Share of each tracer's predicted cost sent as its head, for a frame of ``tracers``
+        predicted to take ``frame_seconds``: everything when the heads' error is too small to
+        pay for the calls a tail costs (never for a ``pooled`` tail)."""
         if self.fraction is not None:
             return self.fraction
         least = self.POOL_MIN_TAIL if pooled else self.MIN_TAIL
@@ -697,20 +749,25 @@ class CostAwareTail(CostAware):
         worth = self.calls_worth * self.call_seconds
         if not pooled and math.isfinite(frame_seconds) and spread * frame_seconds < worth:
             return 1.0
-        return 1.0 - min(max(self.z * spread, least), self.MAX_TAIL)
+        z = max(self.z, math.sqrt(2.0 * math.log(max(2, tracers))))
+        most = self.POOL_MAX_TAIL if pooled else self.MAX_TAIL
+        return 1.0 - min(max(z * spread, least), most)
 
-    def plan(self, height: int, tracers: Sequence[str], pooled: bool = False) -> TailPlan:
+    def plan(
+        self, height: int, tracers: Sequence[str], pooled: bool = False, spans: int = 1
+    ) -> TailPlan:
         """Heads (one per tracer, in order) and the tail of the next frame. ``pooled``: the
         tail goes to a shared line pool (:mod:`worker.line_pool`), where a chunk costs a
         fraction of a Ray call: smaller chunks, and a tail on smaller frames."""
-        ranges = self.split(height, tracers)
-        profile = self.predicted_profile(height)
+        ranges = self.split(height, tracers, spans)
+        profile = self.predicted_profile(height, spans)
         prefix = np.concatenate(([0.0], np.cumsum(profile)))
         speeds = self.speeds(tracers)
         timed = all(t in self._work for t in tracers)
-        fraction = self.head_fraction(prefix[-1] / speeds.sum() if timed else math.inf, pooled)
+        frame_seconds = prefix[-1] / speeds.sum() if timed else math.inf
+        fraction = self.head_fraction(frame_seconds, pooled, len(tracers))
         min_lines = min(self.min_lines, self.POOL_MIN_LINES) if pooled else self.min_lines
-        if height < min_lines * len(tracers) or not (pooled or self.call_tail):
+        if height < min_lines * spans * len(tracers) or not (pooled or self.call_tail):
             fraction = 1.0
         known = self._predictors[0].level is not None
         heads: list[LineRange] = []
@@ -720,11 +777,12 @@ class CostAwareTail(CostAware):
             heads.append(head)
             if head[1] > head[0] and known and tracer in self._work:  # a real prediction
                 predicted = (prefix[head[1]] - prefix[head[0]]) / speed
-                self._heads.setdefault((tracer, *head), deque()).append(predicted)
+                key = (tracer, height, spans, *head)
+                self._heads.setdefault(key, deque()).append(predicted)
             if rest[1] > rest[0]:
                 per_line = (prefix[rest[1]] - prefix[rest[0]]) / (rest[1] - rest[0])
                 tail.append((-per_line, rest[0], rest[1]))
-        while len(self._heads) > self.HEADS_KEPT:
+        while len(self._heads) > self.HEADS_KEPT * len(tracers):
             self._heads.pop(next(iter(self._heads)))
         segments = deque([y0, y1] for _, y0, y1 in sorted(tail))  # dearest first
         return TailPlan(
@@ -741,15 +799,15 @@ class CostAwareTail(CostAware):
             segments=segments,
         )
 
-    def observe(self, height: int, reports: Sequence[TracerReport]) -> None:
-        _check_reports(height, reports)
+    def observe(self, height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:
+        _check_reports(height, reports, spans)
         work: dict[str, list[float]] = {}
         for r in reports:
             sums = work.setdefault(r.tracer, [0.0, 0.0])
             if r.y1 > r.y0 and _usable(r.seconds):
                 sums[0] += float(np.sum(r.line_cost))
                 sums[1] += r.seconds
-                key = (r.tracer, r.y0, r.y1)
+                key = (r.tracer, height, spans, r.y0, r.y1)
                 queued = self._heads.get(key)
                 predicted = queued.popleft() if queued else None
                 if queued is not None and not queued:
@@ -763,7 +821,7 @@ class CostAwareTail(CostAware):
                     )
         for tracer, (spent, seconds) in work.items():
             self._observe_speed(tracer, spent, seconds)
-        self._observe_profile(height, reports)
+        self._observe_profile(height, reports, spans)
 
 
 class CostAwarePooled(CostAwareTail):

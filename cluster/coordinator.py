@@ -52,7 +52,8 @@ Failures:
   running, and that range has run longer than ``straggler_factor`` x its predicted time plus
   ``straggler_floor`` seconds, its unfinished units are duplicated to an idle tracer; whichever
   copy arrives first is used (the other is ignored when it arrives). The prediction is the
-  frame's own measurement: median apply seconds plus units x median render seconds per unit of
+  frame's own measurement: median apply seconds plus units x render seconds per unit (a ratio of
+  sums) of
   the ranges already finished in this frame.
 - **Out of sync.** A tracer that cannot reach the frame's version answers ``OutOfSync`` with
   the version it holds; the range is resent with the commits from there, or a snapshot.
@@ -704,12 +705,12 @@ class Coordinator:
                 and len(slots) > 1
                 and all(s.node == self._node and not s.pool_blind for s in slots)
             )
-            job.tail = plan(units.count, ids, pooled=pooled)
+            job.tail = plan(units.count, ids, pooled=pooled, spans=units.spans)
             ranges = job.tail.heads
             if pooled and not job.tail.empty:
                 self._open_pool(job)
         else:
-            ranges = self.balancer.split(units.count, ids)
+            ranges = self.balancer.split(units.count, ids, spans=units.spans)
         try:
             for owner, (slot, (u0, u1)) in enumerate(zip(slots, ranges, strict=True)):
                 job.split.append((slot.id, u0, u1))
@@ -1189,7 +1190,7 @@ class Coordinator:
                 reports.append(TracerReport(tracer_id, u0, u1, result.seconds, result.cost))
         reports += self._stalled_reports(job, now)
         if reports:
-            self.balancer.observe(job.units.count, reports)
+            self.balancer.observe(job.units.count, reports, spans=job.units.spans)
 
     def _observe_tail(self, job: FrameJob, now: float) -> None:
         """Tell a dynamic-tail balancer every accepted range: heads and chunks with their
@@ -1208,7 +1209,7 @@ class Coordinator:
         ]
         reports += self._stalled_reports(job, now)
         if reports:
-            self.balancer.observe(job.units.count, reports)
+            self.balancer.observe(job.units.count, reports, spans=job.units.spans)
 
     def _stalled_reports(self, job: FrameJob, now: float) -> list[TracerReport]:
         """Stragglers of ``job``'s split whose units a copy delivered, each with the time it

@@ -9,8 +9,9 @@ one pixel run ``[pixel(u0), pixel(u1))``, which the tracer renders with
 Why spans: a balancer cannot place a cut, nor the dynamic tail cut a chunk, finer than a
 unit. With 480 lines and 128 tracers a tracer's share is under four lines, and one dear line
 more or less is a large part of its frame (``docs/balancing.md``). :meth:`WorkUnits.for_tracers`
-gives every frame at least ``UNITS_PER_TRACER`` units per tracer: whole lines for two tracers
-on 480 lines, 64 spans of 10 pixels for 128 tracers on 640x480.
+gives every frame at least ``UNITS_PER_TRACER`` units per tracer where spans of at least
+``MIN_SPAN_PIXELS``, at most ``MAX_SPANS`` a line, allow it: whole lines for two tracers on
+480 lines, 64 spans of 10 pixels for 128 tracers on 640x480.
 """
 
 from dataclasses import dataclass
@@ -58,7 +59,7 @@ class WorkUnits:
         """Units in the frame."""
         return self.height * self.spans
 
-    def pixel(self, unit):
+    def pixel(self, unit: int | np.ndarray) -> int | np.ndarray:
         """First pixel (row-major index) of ``unit`` (an int or an integer array); ``pixel(count)``
         is the number of pixels."""
         line, span = np.divmod(unit, self.spans)

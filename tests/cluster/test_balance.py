@@ -431,3 +431,63 @@ def test_cost_aware_behind_a_pipeline():
             balancer.observe(200, pending.pop(0))
     assert idle[1] > 20.0  # the second frame is split before the first is observed
     assert max(idle[3:]) < 1.0
+
+
+# --- frames cut into spans of lines (worker.work_units) -----------------------------------------
+
+
+@pytest.mark.parametrize("name", ["robin-hood", "perfect", "perfect-smooth", "cost-aware-static"])
+def test_a_change_of_layout_keeps_equal_tracers_equal(name):
+    """Three equal tracers on 480 image lines cut into 2 spans each; one sits a frame out (two
+    tracers: whole lines) and comes back: it gets a third again, not a share measured in the
+    other layout's units."""
+    balancer = make_balancer(name)
+    ids = ["a", "b", "c"]
+    flat = np.full(960, 3)
+    for _ in range(3):
+        _split_observe(balancer, flat, ids, spans=2)
+    _split_observe(balancer, np.full(480, 6), ["a", "b"], spans=1)
+    sizes = [b - a for a, b in balancer.split(960, ids, spans=2)]
+    assert sizes == pytest.approx([320, 320, 320], abs=12), sizes
+
+
+def _split_observe(balancer, cost, ids, spans):
+    """A frame of equal-speed tracers (seconds = cost of the range)."""
+    ranges = balancer.split(cost.size, ids, spans=spans)
+    reports = [
+        TracerReport(t, a, b, float(cost[a:b].sum()), cost[a:b].astype(np.int64))
+        for t, (a, b) in zip(ids, ranges, strict=True)
+    ]
+    balancer.observe(cost.size, reports, spans=spans)
+
+
+def test_cost_aware_resamples_spans_and_lines_apart():
+    """A profile whose left half of every line is cheap and right half dear keeps that shape
+    when the frame changes height (480 -> 360 lines of 2 spans) or spans (2 -> 4 per line)."""
+    balancer = CostAware(predictors=[(1.0, 0.0, 1.0)], blur=0)
+    left_right = np.tile([1, 100], 480)
+    balancer.observe(960, [TracerReport("a", 0, 960, 1.0, left_right)], spans=2)
+    shorter = balancer.predicted_profile(720, spans=2).reshape(360, 2)
+    assert np.allclose(shorter, [1 * 480 / 360, 100 * 480 / 360])
+    finer = balancer.predicted_profile(1920, spans=4).reshape(480, 4)
+    assert np.allclose(finer, [0.5, 0.5, 50, 50])
+    whole = balancer.predicted_profile(480, spans=1)
+    assert np.allclose(whole, 101)
+
+
+def test_cost_aware_blurs_over_image_lines_within_a_span():
+    """The blur averages each span with the same span of the image lines around it, not with
+    its neighbours in the line."""
+    balancer = CostAware(predictors=[(1.0, 0.0, 1.0)], blur=1)
+    cost = np.zeros((6, 4))
+    cost[3, 1] = 300.0
+    balancer.observe(24, [TracerReport("a", 0, 24, 1.0, cost.reshape(-1).astype(np.int64))], 4)
+    profile = balancer.predicted_profile(24, spans=4).reshape(6, 4)
+    floor = profile.min()
+    assert np.allclose(profile[2:5, 1], 100.0)
+    assert np.allclose(np.delete(profile, 1, axis=1), floor)
+
+
+def test_reports_must_fit_the_spans():
+    with pytest.raises(ValueError, match="spans"):
+        CostAware().split(10, ["a"], spans=4)

@@ -4,6 +4,8 @@ how well heads were predicted, and the tail absorbs speed changes no static spli
 foresee."""
 
 import heapq
+import itertools
+import math
 from collections import deque
 
 import numpy as np
@@ -158,6 +160,11 @@ def test_the_tail_share_follows_the_prediction_error():
     # rms of the relative head error is about 0.1 to 0.14 (the speed of one frame against a
     # smoothed mean); the smoothed estimate over ~10 frames stays within a factor 2 of that.
     assert CostAwareTail.Z * 0.05 < tail < CostAwareTail.Z * 0.3
+    # The same error with 128 tracers: the tail covers the slowest of 128 heads, about
+    # sqrt(2 ln 128) = 3.1 error widths instead of Z = 1.5 (up to the pooled cap).
+    many = 1.0 - noisy.head_fraction(pooled=True, tracers=128)
+    assert many == pytest.approx(min(tail * math.sqrt(2 * math.log(128)) / 1.5, 0.3))
+    assert 1.0 - noisy.head_fraction(pooled=True, tracers=2) == pytest.approx(max(tail, 0.1))
 
 
 def test_no_tail_when_heads_miss_by_less_than_a_few_calls():
@@ -196,7 +203,7 @@ def test_a_pooled_plan_keeps_a_tail_where_a_call_plan_has_none():
     for balancer in (tail, default):
         plan = balancer.plan(300, ["a", "b"], pooled=True)
         share = plan.remaining_cost() / plan.prefix[-1]
-        assert CostAwareTail.POOL_MIN_TAIL * 0.9 <= share <= CostAwareTail.MAX_TAIL * 1.1
+        assert CostAwareTail.POOL_MIN_TAIL * 0.9 <= share <= CostAwareTail.POOL_MAX_TAIL * 1.1
         chunks = plan.take_all()
         assert plan.empty and len(chunks) >= 5
         speed = float(balancer.speeds(["a"])[0])
@@ -212,7 +219,7 @@ def test_heads_planned_twice_before_an_observation_keep_both_predictions():
     dynamic_frame(balancer, cost, ["a", "b"], [1e6, 1e6])
     first, second = balancer.plan(300, ["a", "b"]), balancer.plan(300, ["a", "b"])
     assert first.heads == second.heads
-    keys = [("a", *first.heads[0]), ("b", *first.heads[1])]
+    keys = [("a", 300, 1, *first.heads[0]), ("b", 300, 1, *first.heads[1])]
     assert all(len(balancer._heads[key]) == 2 for key in keys)
     reports = [
         TracerReport(t, y0, y1, 0.01, cost[y0:y1].astype(np.int64))
@@ -260,3 +267,48 @@ def test_the_tail_absorbs_speed_changes_a_static_split_cannot_foresee():
     assert isinstance(static, CostAware) and not hasattr(static, "plan")
     assert np.mean(idle_static[5:]) > 2.0
     assert np.mean(idle_tail[5:]) < np.mean(idle_static[5:]) / 3
+
+
+def test_many_pipelined_tracers_keep_every_head_prediction():
+    """128 tracers, frame N+1 planned before N is observed: every head of N is still matched
+    to its prediction, so the heads' error (and the tail's size) is learned. (Predictions
+    used to be capped at 64 whatever the tracer count: with 128 tracers none survived.)"""
+    tracers = [f"t{i:03d}" for i in range(128)]
+    cost = sky_and_ground(128 * 8)
+    balancer = CostAwareTail(z=1.0)
+    dynamic_frame(balancer, cost, tracers, [1e6] * 128)
+    speeds = balancer.speeds(tracers)
+    first = balancer.plan(cost.size, tracers, pooled=True)
+    balancer.plan(cost.size, tracers, pooled=True)  # the next frame, before the first is seen
+    slower = 1.3  # every head took 30% longer than predicted
+    reports = [
+        TracerReport(
+            t,
+            a,
+            b,
+            slower * float(first.prefix[b] - first.prefix[a]) / v,
+            cost[a:b].astype(np.int64),
+        )
+        for t, v, (a, b) in zip(tracers, speeds, first.heads, strict=True)
+        if b > a
+    ]
+    balancer.observe(cost.size, reports)
+    assert balancer._error2 is not None and math.sqrt(balancer._error2) > 0.2
+
+
+def test_pooled_chunks_are_sized_for_the_slowest_tracer():
+    """Whoever claims a pooled chunk, the slowest tracer included, must finish it in time: the
+    first chunk is the remaining tail x the slowest tracer's share of the speed / divisor."""
+    prefix = np.arange(1001, dtype=np.float64)  # every line costs 1
+    plan = TailPlan(
+        tracers=["slow", "fast"],
+        heads=[(0, 0), (0, 0)],
+        prefix=prefix,
+        speeds={"slow": 1.0, "fast": 4.0},
+        divisor=2.0,
+        segments=deque([[0, 1000]]),
+    )
+    chunks = plan.take_all()
+    assert chunks[0] == (0, 100)  # 1000 x 1/5 / 2, not the mean tracer's 1000 x 1/2 / 2
+    assert [b - a for a, b in chunks] == sorted((b - a for a, b in chunks), reverse=True)
+    assert chunks[-1][1] == 1000 and all(a == b for (_, a), (b, _) in itertools.pairwise(chunks))
