@@ -33,8 +33,11 @@ if str(REPO_ROOT) in sys.path:
     sys.path.remove(str(REPO_ROOT))
 sys.path.insert(0, str(REPO_ROOT))
 
-console = Console(highlight=False, width=None if sys.stdout.isatty() else 160)
-"""The benchmarks' console; wide when writing to a file or pipe, so tables keep one line a row."""
+console = Console(
+    highlight=False, width=None if sys.stdout.isatty() or "COLUMNS" in os.environ else 160
+)
+"""The benchmarks' console; wide when writing to a file or pipe (``COLUMNS=240`` for wider),
+so tables keep one line a row."""
 
 
 # --- machine -----------------------------------------------------------------------------------
