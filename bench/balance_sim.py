@@ -71,6 +71,7 @@ from cluster.balance import (
     make_balancer,
     min_max_cuts,
 )
+from worker.remote_pool import REMOTE_CLAIM_SECONDS
 from worker.work_units import WorkUnits
 
 TRACE_DIR = REPO_ROOT / "bench" / "traces"
@@ -228,10 +229,14 @@ def simulate_calls(
     lag: int = 0,
     claim: float | None = None,
     spans: int = 1,
+    remote: bool = False,
 ) -> dict[str, np.ndarray]:
     """Every frame of ``cost`` (``spans`` units per line) as the coordinator runs it, call by
-    call (:func:`frame_calls`), or with ``claim`` (seconds per chunk) as tracers sharing one
-    machine run it, the tail in a shared unit pool (:func:`frame_pool`).
+    call (:func:`frame_calls`), or with ``claim`` (seconds per chunk) as tracers claiming from
+    a shared pool run it (:func:`frame_pool`), chunks at least twice a claim. ``remote``: the
+    tracers are on several machines, so the pool is the actor pool (only for balancers that
+    use it, ``remote_pool``; the others run call by call): chunks at least twice its round
+    trip, ``REMOTE_CLAIM_SECONDS`` (claims are sent ahead, so ``claim`` is less).
     Returns per frame: ``idle`` (Table 16's measure with the gaps between a tracer's calls
     counted as idle: every tracer's window runs from its first render to the latest end of
     any), ``span_idle`` (from the first send to the last result: latency included), ``wall``
@@ -240,10 +245,13 @@ def simulate_calls(
     ids = [f"t{i:03d}" for i in range(speeds.size)]
     out = {k: np.empty(frames) for k in ("idle", "span_idle", "wall", "calls")}
     pending: list[list[TracerReport]] = []
-    pooled = claim is not None
+    pooled = claim is not None and (not remote or getattr(balancer, "remote_pool", False))
     for f in range(frames):
         if hasattr(balancer, "plan"):
-            plan = balancer.plan(height, ids, pooled=pooled, spans=spans)
+            claim_seconds = (REMOTE_CLAIM_SECONDS if remote else claim) if pooled else 0.0
+            plan = balancer.plan(
+                height, ids, pooled=pooled, spans=spans, claim_seconds=claim_seconds
+            )
             heads = plan.heads
         else:
             plan, heads = None, balancer.split(height, ids, spans=spans)
@@ -476,6 +484,7 @@ def run_calls(args, factories: dict, jitter_sigma: float, lag: int) -> dict:
                 lag,
                 None if args.pool_claim_ms is None else args.pool_claim_ms * 1e-3,
                 sc.spans,
+                args.remote_pool,
             )
             entry["balancers"][name] = {
                 "idle": float(out["idle"].mean()),
@@ -580,16 +589,16 @@ TARGET_COLUMNS = (
 TARGET_COLUMNS = TARGET_COLUMNS.split()
 
 
-def check_targets(all_results: dict, model: str) -> list[dict]:
-    """The issue's targets for ``cost-aware`` at every jitter level, on the mean over all
-    frames and over the steady frames; ``model`` names what the runs replayed."""
+def check_targets(all_results: dict, model: str, name: str = "cost-aware") -> list[dict]:
+    """The issue's targets for the balancer ``name`` at every jitter level, on the mean over
+    all frames and over the steady frames; ``model`` names what the runs replayed."""
     checks = []
     for run_key, results in all_results.items():
         for (orbit, label), target in TARGETS.items():
             entry = results.get(orbit, {}).get(label)
-            if entry is None or "cost-aware" not in entry["balancers"]:
+            if entry is None or name not in entry["balancers"]:
                 continue
-            ours = entry["balancers"]["cost-aware"]
+            ours = entry["balancers"][name]
             # split-level summaries have mean / steady, call-level ones idle / idle_steady
             mean = ours.get("mean", ours.get("idle"))
             steady = ours.get("steady", ours.get("idle_steady"))
@@ -618,7 +627,7 @@ def check_targets(all_results: dict, model: str) -> list[dict]:
             return "-" if value is None else f"{value:.2f}"
 
         print_table(
-            f"targets: cost-aware idle % ({model}; mean over all frames, over frames 8+); the "
+            f"targets: {name} idle % ({model}; mean over all frames, over frames 8+); the "
             "oracle's mean is the floor that jitter and whole units leave to a split made "
             "before the frame, the noise floor what jitter alone leaves such a split even with "
             "infinitely divisible work",
@@ -822,9 +831,19 @@ def main(argv: list[str] | None = None) -> int:
         const=0.05,
         default=None,
         metavar="CLAIM_MS",
-        help="with --calls: the tracers share one machine, so the tail goes to a shared unit "
-        "pool claimed at CLAIM_MS per chunk (default %(const)s ms: a file lock, a kernel "
-        "launch and the chunk's result) instead of Ray calls",
+        help="with --calls: the tail goes to a shared pool the tracers claim chunks from, "
+        "CLAIM_MS per claim (default %(const)s ms: the file pool of tracers sharing one "
+        "machine, a file lock, a kernel launch and the chunk's result), instead of Ray calls; "
+        "chunks are at least twice a claim",
+    )
+    parser.add_argument(
+        "--remote-pool",
+        action="store_true",
+        help="with --calls: tracers on several machines, so only cost-aware-tail pools its "
+        "tail, in the actor pool (worker.remote_pool): each claim is sent while the chunk "
+        "before it renders and costs a tracer 0.15 ms (unless --pool sets it), chunks at "
+        "least twice the pool's round trip (worker.remote_pool.REMOTE_CLAIM_SECONDS); "
+        "cost-aware keeps no tail there",
     )
     parser.add_argument(
         "--tail-sweep",
@@ -853,8 +872,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--lag must be >= 0")
     if args.calls and args.sweep:
         parser.error("--sweep runs the split-level model; with --calls use --tail-sweep")
-    if not args.calls and (args.tail_sweep or args.pool_claim_ms is not None):
-        parser.error("--tail-sweep and --pool belong to the call-level model: add --calls")
+    if not args.calls and (args.tail_sweep or args.pool_claim_ms is not None or args.remote_pool):
+        parser.error(
+            "--tail-sweep, --pool and --remote-pool belong to the call-level model: add --calls"
+        )
+    if args.remote_pool and args.pool_claim_ms is None:
+        args.pool_claim_ms = 0.15
     if args.pool_claim_ms is not None and args.pool_claim_ms < 0:
         parser.error("--pool's claim time must be >= 0 ms")
     if args.name is not None and not args.name.replace("_", "").replace("-", "").isalnum():
@@ -935,6 +958,7 @@ def main_calls(args, options: dict, machine: dict) -> int:
                 all_results[key],
                 f"{'tail sweep: ' if args.tail_sweep else ''}"
                 f"{'shared unit pool: ' if args.pool_claim_ms is not None else ''}"
+                f"{'actor pool (claims sent ahead): ' if args.remote_pool else ''}"
                 f"calls: idle % (gaps count) / span "
                 f"idle % (latency counts) / wall ms / calls per tracer, means over "
                 f"{args.frames} frames; {key}",
@@ -945,12 +969,16 @@ def main_calls(args, options: dict, machine: dict) -> int:
         f"{args.frame_ms:g} ms; {time.perf_counter() - start:.1f} s[/]"
     )
     pooled = args.pool_claim_ms is not None
+    pool = "balance_pool_remote" if args.remote_pool else "balance_pool"
     name = args.name or (
-        "balance_tail_sweep" if args.tail_sweep else "balance_pool" if pooled else "balance_tail"
+        "balance_tail_sweep" if args.tail_sweep else pool if pooled else "balance_tail"
     )
     checks = []
     if pooled and not args.tail_sweep:
-        checks = check_targets(all_results, "as the coordinator runs it: a shared pool")
+        if args.remote_pool:
+            checks = check_targets(all_results, "tracers on several machines", "cost-aware-tail")
+        else:
+            checks = check_targets(all_results, "as the coordinator runs it: a file pool")
     payload = {"options": options, "targets": checks, "results": all_results}
     write_results(name, payload, machine)
     return 0

@@ -341,6 +341,18 @@ def recovery(size: int, spp: int) -> dict:
     }
 
 
+def start_nodes(cpus_each: int):
+    """A ``ray.cluster_utils.Cluster`` on this machine: a head without CPUs (where this
+    process, the coordinator, attaches) and two worker nodes of ``cpus_each`` CPUs."""
+    from ray.cluster_utils import Cluster
+
+    nodes = Cluster(initialize_head=True, head_node_args={"num_cpus": 0})
+    for _ in range(2):
+        nodes.add_node(num_cpus=cpus_each)
+    nodes.wait_for_nodes()
+    return nodes
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], epilog="Quick check: --quick"
@@ -368,6 +380,14 @@ def main(argv: list[str] | None = None) -> int:
         "balancers taking turns frame by frame (steadier on a quiet machine; fair only if the "
         "load does not change)",
     )
+    parser.add_argument(
+        "--nodes",
+        action="store_true",
+        help="run on a ray.cluster_utils.Cluster of this machine (a head without CPUs, the "
+        "coordinator's, and two worker nodes) instead of one embedded Ray: tracers are then "
+        "on other nodes than the coordinator, so pooled tails go to the actor pool "
+        "(worker.remote_pool) instead of the shared-memory file",
+    )
     parser.add_argument("--quick", action="store_true", help="small sizes, few frames")
     args = parser.parse_args(argv)
     if args.quick:
@@ -377,7 +397,9 @@ def main(argv: list[str] | None = None) -> int:
     print_machine(info)
     # Room for every set-up's tracers at once (they take turns; only one renders at a time).
     runs = len(args.balancers) + (0 if args.no_oracle else 1)
-    connect(num_cpus=max(int(sum(n * cpus for n, cpus in SETUPS.values())), 2 * runs))
+    cpus = max(int(sum(n * cpus for n, cpus in SETUPS.values())), 2 * runs)
+    nodes = start_nodes(cpus // 2) if args.nodes else None
+    connect(nodes.address if nodes else None, num_cpus=None if nodes else cpus)
     payload: dict = {"options": vars(args)}
     try:
         if "scaling" not in args.skip:
@@ -472,6 +494,8 @@ def main(argv: list[str] | None = None) -> int:
             )  # fmt: skip
     finally:
         disconnect()
+        if nodes is not None:
+            nodes.shutdown()
     write_results("cluster", payload, info)
     return 0
 

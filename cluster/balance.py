@@ -18,6 +18,8 @@ Balancers (``make_balancer(name)``; formulas and measurements in ``docs/balancin
   (the min-max contiguous partition of the predicted costs).
 - ``cost-aware-tail`` (``cluster.tail``): ``cost-aware``'s split sent as a head of about 90% of
   each range, the rest handed out in shrinking chunks to whichever tracer finishes first.
+  ``cost-aware`` (the default) keeps such a tail only in a shared pool, where tracers claim
+  chunks themselves; the split alone is ``cost-aware-static``.
 
 State is kept per tracer id, so tracers may join and leave between frames: an id a balancer has
 not seen gets a default (an even or mean share). Balancers are deterministic: the same calls
@@ -643,13 +645,15 @@ class CostAwareTail(CostAware):
     ``MIN_LINES`` lines per tracer. ``fraction`` fixes the heads' share instead (the lines rule
     still applies; ``min_lines=1`` lifts it).
 
-    A ``pooled`` plan (every tracer shares the coordinator's machine, so the tail goes to a
-    shared line pool: :mod:`worker.line_pool`) always keeps a tail of at least
-    ``POOL_MIN_TAIL`` and at most ``POOL_MAX_TAIL`` (a claim costs microseconds, not a Ray
-    call, so no error is too small to be worth it) as long as there are ``POOL_MIN_LINES``
-    lines per tracer, and cuts chunks down to ``POOL_MIN_SECONDS`` of predicted work (and one
-    line), sized for the slowest tracer (``TailPlan.take_all``). ``call_tail=False`` gives
-    plans without a pool no tail at all (``cost-aware``).
+    A ``pooled`` plan (the tail goes to a shared pool the tracers claim chunks from
+    themselves: :mod:`worker.line_pool`, :mod:`worker.remote_pool`) always keeps a tail of at
+    least ``POOL_MIN_TAIL`` and at most ``POOL_MAX_TAIL`` (a claim costs microseconds to a
+    millisecond, not a render call, so no error is too small to be worth it) as long as there
+    are ``POOL_MIN_LINES`` lines per tracer, and cuts chunks down to ``POOL_MIN_SECONDS`` of
+    predicted work (or twice a claim, and one line), sized for the slowest tracer
+    (``TailPlan.take_all``). ``call_tail=False`` gives plans without a pool no tail at all,
+    and ``remote_pool=False`` keeps the tail out of the actor pool of several machines
+    (``cost-aware``: there its plans are not pooled).
 
     ``observe`` takes any number of reports per tracer (heads and chunks): the profile from
     all of them, each tracer's speed from the sums of its cost and seconds over the frame (one
@@ -711,10 +715,14 @@ class CostAwareTail(CostAware):
         calls_worth: float = CALLS_WORTH,
         min_lines: int = MIN_LINES,
         call_tail: bool = True,
+        remote_pool: bool = True,
         **cost_aware,
     ) -> None:
         super().__init__(**cost_aware)
         self.call_tail = call_tail
+        self.remote_pool = remote_pool
+        """Whether the coordinator may put the tail in the actor pool of tracers on several
+        machines (:mod:`worker.remote_pool`); the file pool of one machine is always used."""
         if fraction is not None and not 0.0 < fraction <= 1.0:
             raise ValueError("fraction must be in (0, 1]")
         if not divisor > 0.0 or not 0.0 <= min_chunk < 1.0 or not min(z, min_seconds) >= 0.0:
@@ -754,11 +762,17 @@ class CostAwareTail(CostAware):
         return 1.0 - min(max(z * spread, least), most)
 
     def plan(
-        self, height: int, tracers: Sequence[str], pooled: bool = False, spans: int = 1
+        self,
+        height: int,
+        tracers: Sequence[str],
+        pooled: bool = False,
+        spans: int = 1,
+        claim_seconds: float = 0.0,
     ) -> TailPlan:
         """Heads (one per tracer, in order) and the tail of the next frame. ``pooled``: the
-        tail goes to a shared line pool (:mod:`worker.line_pool`), where a chunk costs a
-        fraction of a Ray call: smaller chunks, and a tail on smaller frames."""
+        tail goes to a shared pool (:mod:`worker.line_pool`, :mod:`worker.remote_pool`), where
+        a chunk costs a fraction of a Ray call: smaller chunks, and a tail on smaller frames;
+        ``claim_seconds``, what one claim costs a tracer, keeps chunks at least twice that."""
         ranges = self.split(height, tracers, spans)
         profile = self.predicted_profile(height, spans)
         prefix = np.concatenate(([0.0], np.cumsum(profile)))
@@ -792,7 +806,7 @@ class CostAwareTail(CostAware):
             speeds={t: float(v) for t, v in zip(tracers, speeds, strict=True)},
             divisor=self.divisor,
             min_chunk=0.0 if pooled else self.min_chunk,
-            min_seconds=min(self.min_seconds, self.POOL_MIN_SECONDS)
+            min_seconds=max(min(self.min_seconds, self.POOL_MIN_SECONDS), 2.0 * claim_seconds)
             if pooled
             else self.min_seconds,
             timed=timed,
@@ -826,14 +840,17 @@ class CostAwareTail(CostAware):
 
 class CostAwarePooled(CostAwareTail):
     """``cost-aware``, the default: the cost-aware split, with a dynamic tail only where a
-    chunk is cheap, in a shared line pool (:mod:`worker.line_pool`) when every tracer of the
-    frame shares the coordinator's machine; across machines the static split alone (a tail
-    there costs Ray calls: ``cost-aware-tail``)."""
+    chunk is cheapest, in the file pool of tracers that all share the coordinator's machine
+    (:mod:`worker.line_pool`). Across machines the static split alone: ``cost-aware-tail``
+    puts the tail in the actor pool there (:mod:`worker.remote_pool`), which the simulator
+    finds worth it (idle under 3% with 8-128 tracers against 5-12%) but which made frames
+    7-15% slower with two tracers on two Ray nodes of the two-core development machine, where
+    the pool actor waits for a core (``docs/balancing.md``)."""
 
     name = "cost-aware"
 
     def __init__(self, **options) -> None:
-        super().__init__(call_tail=False, **options)
+        super().__init__(call_tail=False, remote_pool=False, **options)
 
 
 BALANCERS: dict[str, type[Balancer]] = {

@@ -24,13 +24,16 @@ results arrives, so a call is always queued behind the one it renders; the balan
 observes every accepted range. ``Frame.idle_percent`` counts a tracer's waits between its
 ranges as idle (:func:`gap_idle_percent`; Table 16's measure with one range per tracer).
 
-When every tracer of a frame runs on the coordinator's own Ray node, the tail does not go
-out in calls: step 1 writes all of it into a shared line pool (:mod:`worker.line_pool`) and
+With a pool the tail does not go out in calls: step 1 writes all of it into a shared pool and
 every tracer's one call names the pool, so a tracer renders its head and then claims chunks
-itself, microseconds apart, until none is left; its result carries the chunks
-(``UnitsResult.more``). Every claim records its owner, so the units a lost or stalled tracer
-held are known. ``cost-aware`` (the default) keeps a tail only in that case, ``cost-aware-tail``
-also hands one out in calls across machines.
+itself until none is left; its result carries the chunks (``UnitsResult.more``). When every
+tracer of the frame runs on the coordinator's own Ray node the pool is a small file in shared
+memory (:mod:`worker.line_pool`, claims microseconds apart; ``cost-aware``, the default,
+keeps a tail only there); otherwise, for ``cost-aware-tail``, a Ray actor on the
+coordinator's node holds it (:mod:`worker.remote_pool`: a claim is one actor call, sent
+while the chunk before it renders). Every claim records its owner, so the units a lost or
+stalled tracer held are known. ``cost-aware-tail`` hands its tail out in calls where no pool
+is allowed (``line_pool=False``, Ray Client).
 
 ``render_animation`` pipelines frames (Bikker's double buffering, 7.3.4): frame N+1's pose is
 committed to the graph and its render calls are submitted while frame N renders, so each
@@ -91,6 +94,7 @@ from tracer.scene_model import SceneState
 from worker.line_pool import LinePool
 from worker.line_pool import supported as line_pool_supported
 from worker.line_pool import sweep as line_pool_sweep
+from worker.remote_pool import REMOTE_CLAIM_SECONDS, RemotePool, remote_tables
 from worker.replica import KEEP_VERSIONS
 from worker.tracer_actor import MAX_SCENES, OutOfSync, TracerInfo, UnitsResult, remote_tracer
 from worker.work_units import WorkUnits
@@ -255,8 +259,8 @@ class FrameJob:
     primary: dict[str, UnitsResult] = field(default_factory=dict)
     tail: TailPlan | None = None
     """The dynamic tail's units not handed out yet (``cost-aware-tail``)."""
-    pool: LinePool | None = None
-    """The dynamic tail as a shared line pool, when every tracer shares this machine."""
+    pool: LinePool | RemotePool | None = None
+    """The dynamic tail as a shared pool: a file when every tracer shares this machine."""
     arrivals: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     """Per tracer, (arrival time, busy seconds) of each accepted result, in arrival order."""
     late_heads: dict[str, float] = field(default_factory=dict)
@@ -329,7 +333,7 @@ class Coordinator:
         self.max_attempts = max_attempts
         self.start_timeout = start_timeout
         self.stall_timeout = stall_timeout
-        self.line_pool = line_pool and line_pool_supported()
+        self.line_pool = line_pool
         self.stats = {
             "frames": 0,
             "failures": 0,
@@ -345,13 +349,14 @@ class Coordinator:
         self._buffers: OrderedDict[tuple[str, int, int], Any] = OrderedDict()
         self._orphans: dict = {}
         self._last_done = 0.0
-        self._pools: set[LinePool] = set()
+        self._pools: set[LinePool | RemotePool] = set()
+        self._pool_tables = None  # the actor holding remote pools, made when first needed
         if not ray.is_initialized():
             connect()
         self._node = ray.get_runtime_context().get_node_id()
         if ray.util.client.ray.is_connected():  # Ray Client: this process is on no Ray node
             self.line_pool = False
-        if self.line_pool:
+        if self.line_pool and line_pool_supported():
             line_pool_sweep()
         self._per_node = tracers is None
         self._declined: set[str] = set()
@@ -601,6 +606,9 @@ class Coordinator:
         for pool in self._pools:
             pool.unlink()
         self._pools.clear()
+        if self._pool_tables is not None:
+            ray.kill(self._pool_tables)
+            self._pool_tables = None
         self._snapshots.clear()
         self._buffers.clear()
 
@@ -700,15 +708,16 @@ class Coordinator:
         ids = [s.id for s in slots]
         plan = getattr(self.balancer, "plan", None)
         if plan is not None:
-            pooled = (
-                self.line_pool
-                and len(slots) > 1
-                and all(s.node == self._node and not s.pool_blind for s in slots)
+            local = line_pool_supported() and all(
+                s.node == self._node and not s.pool_blind for s in slots
             )
-            job.tail = plan(units.count, ids, pooled=pooled, spans=units.spans)
+            remote = getattr(self.balancer, "remote_pool", False)
+            pooled = self.line_pool and len(slots) > 1 and (local or remote)
+            claim = 0.0 if local else REMOTE_CLAIM_SECONDS
+            job.tail = plan(units.count, ids, pooled=pooled, spans=units.spans, claim_seconds=claim)
             ranges = job.tail.heads
             if pooled and not job.tail.empty:
-                self._open_pool(job)
+                self._open_pool(job, local)
         else:
             ranges = self.balancer.split(units.count, ids, spans=units.spans)
         try:
@@ -725,10 +734,16 @@ class Coordinator:
             raise
         return job
 
-    def _open_pool(self, job: FrameJob) -> None:
-        """Move ``job``'s whole tail into a shared line pool its tracers claim from."""
+    def _open_pool(self, job: FrameJob, local: bool) -> None:
+        """Move ``job``'s whole tail into a shared pool its tracers claim from: a file when
+        they all share this machine (``local``), else a table in the pool actor."""
         chunks = job.tail.take_all()
-        job.pool = LinePool.create(chunks)
+        if local:
+            job.pool = LinePool.create(chunks)
+        else:
+            if self._pool_tables is None:
+                self._pool_tables = remote_tables(self._node)
+            job.pool = RemotePool.create(self._pool_tables, chunks)
         self._pools.add(job.pool)
         for u0, u1 in chunks:
             job.assembler.assign(u0, u1)
@@ -818,7 +833,7 @@ class Coordinator:
             job.sample_start,
             snapshot,
             scene,
-            pool=None if owner is None else (job.pool.path, owner),
+            pool=None if owner is None else (job.pool.ticket, owner),
             spans=job.units.spans,
         )
         if snapshot is not None:
@@ -1109,15 +1124,17 @@ class Coordinator:
                     stuck.add(tracer)
                 continue
             started = max(task.submitted, task.slot.last_done)
-            owed = self._owed(job, task)
+            owed = None  # asked of a remote pool only when needed: it is an actor call
             if task.owner is not None and job.busy:  # pooled calls end together
                 predicted = max(job.busy.values())
             else:
+                owed = self._owed(job, task)
                 predicted = apply + per_unit * sum(u1 - u0 for u0, u1 in owed)
             late = now - started > self.straggler_factor * predicted + self.straggler_floor
             if not (queued or late):  # a call queued behind a straggler waits as long as it
                 continue
             stuck.add(tracer)
+            owed = self._owed(job, task) if owed is None else owed
             missing = [run for u0, u1 in owed for run in job.assembler.missing(u0, u1)]
             if not missing:
                 continue

@@ -20,7 +20,7 @@ import mmap
 import os
 import tempfile
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +107,11 @@ class LinePool:
             os.close(fd)
             raise
 
+    @property
+    def ticket(self) -> str:
+        """What a tracer's render call needs to claim from this pool: its path."""
+        return self.path
+
     def __len__(self) -> int:
         return int(self._table[1])
 
@@ -131,6 +136,11 @@ class LinePool:
             fcntl.flock(self._fd, fcntl.LOCK_UN)
         u0, u1, _ = self.chunk(k)
         return u0, u1
+
+    def claims(self, owner: int) -> Iterator[tuple[int, int]]:
+        """Chunks for ``owner``, claimed one at a time, until none is left."""
+        while (chunk := self.claim(owner)) is not None:
+            yield chunk
 
     def claimed(self, owner: int | None = None) -> list[tuple[int, int]]:
         """Chunks claimed so far (by ``owner`` only, when given)."""

@@ -37,6 +37,7 @@ from tracer.query import SceneHits
 from tracer.render import render_lines, render_pixels
 from tracer.threads import default_threads
 from worker.line_pool import LinePool
+from worker.remote_pool import RemotePool
 from worker.replica import SceneReplica
 from worker.work_units import WorkUnits
 
@@ -207,7 +208,7 @@ class Tracer:
         sample_start: int = 0,
         snapshot: bytes | None = None,
         scene: str = DEFAULT_SCENE,
-        pool: tuple[str, int] | None = None,
+        pool: tuple[str | RemotePool, int] | None = None,
         spans: int = 1,
     ) -> "UnitsResult | OutOfSync":
         """Render work units [u0, u1) of ``frame`` (``spans`` units per line: whole lines by
@@ -215,9 +216,10 @@ class Tracer:
 
         First applies ``commits`` (encoded, in version order; ones already applied are
         skipped), or starts from ``snapshot`` when given and needed. ``camera`` and ``settings``
-        default to the scene's at ``version``. ``pool``: (path, owner id) of the frame's
-        shared pool; after its own units the tracer claims and renders the pool's chunks
-        until none is left (``UnitsResult.more``). [u0, u1) may then be empty.
+        default to the scene's at ``version``. ``pool``: the frame's shared pool (a
+        :mod:`worker.line_pool` file's path, or a :class:`worker.remote_pool.RemotePool`) and
+        this tracer's owner id in it; after its own units the tracer claims and renders the
+        pool's chunks until none is left (``UnitsResult.more``). [u0, u1) may then be empty.
         """
         start = time.perf_counter()
         problem = self._reach(scene, version, commits, snapshot)
@@ -267,20 +269,20 @@ class Tracer:
         return result
 
     @staticmethod
-    def _drain(pool: tuple[str, int], render_units) -> list[UnitsResult] | None:
-        """Claim and render chunks of the shared pool at ``path`` until none is left; None if
-        the pool cannot be opened here."""
-        path, owner = pool
+    def _drain(pool: tuple[str | RemotePool, int], render_units) -> list[UnitsResult] | None:
+        """Claim and render chunks of the shared pool until none is left; None if the pool
+        is a file that cannot be opened here."""
+        where, owner = pool
         since = time.perf_counter()
         try:
-            shared = LinePool.open(path)
+            shared = LinePool.open(where) if isinstance(where, str) else where
         except OSError:  # not readable here (another user, another container)
             shared = None
         if shared is None:
             return None
         chunks = []
         with shared:
-            while (chunk := shared.claim(owner)) is not None:
+            for chunk in shared.claims(owner):
                 chunks.append(render_units(*chunk, since))  # its seconds include the claim
                 since = time.perf_counter()
         return chunks

@@ -513,15 +513,16 @@ def test_long_pooled_frames_are_not_taken_for_stragglers(fresh):
 def test_chunks_of_a_pool_the_tracers_cannot_open_are_handed_out_in_calls(fresh, monkeypatch):
     """Tracers that cannot open the frame's pool (here: given a path that does not exist)
     render their heads and say so; the coordinator hands the chunks out itself, the frame
-    equals render_image, and the next frame uses no pool for them."""
+    equals render_image, and the next frame puts its tail in the actor pool instead of a
+    file."""
     graph = SceneGraph(studio())
     coordinator = fresh(graph, tracers=2)
     coordinator.balancer = always_tail()
     opened = []
     open_pool = coordinator._open_pool
 
-    def hidden(job):
-        open_pool(job)
+    def hidden(job, local):
+        open_pool(job, local)
         opened.append(job.pool.path)
         job.pool.path += "-elsewhere"  # what the tracers are told
 
@@ -535,8 +536,11 @@ def test_chunks_of_a_pool_the_tracers_cannot_open_are_handed_out_in_calls(fresh,
     kinds = {r.kind for r in frame.ranges}
     assert "reassigned" in kinds and "tail" not in kinds, kinds
     assert_covers(frame)
+    monkeypatch.undo()
     after = coordinator.render_frame(4)
-    assert not after.pooled and np.array_equal(after.rgb, reference(graph.state, 4))
+    assert after.pooled and np.array_equal(after.rgb, reference(graph.state, 4))
+    assert coordinator._pool_tables is not None  # the actor pool: no file for them
+    assert "tail" in {r.kind for r in after.ranges}
 
 
 def test_a_frame_given_up_leaves_no_pool_behind(fresh):
@@ -740,9 +744,10 @@ def headless_cluster():
 
 
 def test_a_node_removed_mid_animation_does_not_stop_the_job(headless_cluster):
-    """A head without CPUs and two worker nodes of one CPU, one tracer each; one worker node
-    is removed while the animation renders. Every frame arrives, equal to render_image; the
-    lost tracer cannot be restarted (no free CPU) and the job goes on without it."""
+    """A head without CPUs and two worker nodes of one CPU, one tracer each, the tail in the
+    actor pool (``cost-aware-tail``); one worker node is removed while the animation renders.
+    Every frame arrives, equal to render_image; the lost tracer cannot be restarted (no free
+    CPU) and the job goes on without it."""
     state = animated(16)
     expected = animation_references(state, range(16))
     cluster = headless_cluster
@@ -751,7 +756,9 @@ def test_a_node_removed_mid_animation_does_not_stop_the_job(headless_cluster):
         workers = [cluster.add_node(num_cpus=1) for _ in range(2)]
         cluster.wait_for_nodes()
         connect(cluster.address)
-        coordinator = Coordinator(SceneGraph(state), straggler_floor=30, delays=[0.05, 0.05])
+        coordinator = Coordinator(
+            SceneGraph(state), balancer="cost-aware-tail", straggler_floor=30, delays=[0.05, 0.05]
+        )
         tracers = coordinator.tracers()
         assert [t["cpus"] for t in tracers] == [1.0, 1.0]
         nodes = {coordinator.info(t["id"]).node for t in tracers}
@@ -765,6 +772,9 @@ def test_a_node_removed_mid_animation_does_not_stop_the_job(headless_cluster):
         assert [f.frame for f in frames] == list(range(16))
         for frame in frames:
             assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
+        # Tracers on two nodes: the tail went to the actor pool, both claimed from it.
+        assert coordinator._pool_tables is not None and frames[0].pooled
+        assert {r.tracer for r in frames[0].ranges if r.kind == "tail"} == {"t0", "t1"}
         assert coordinator.stats["failures"] >= 1 and coordinator.stats["reassigned"] >= 1
         assert {r.tracer for f in frames[8:] for r in f.ranges} == {"t0"}
         assert coordinator.tracers()[1]["state"] in ("recovering", "dead")  # nowhere to go

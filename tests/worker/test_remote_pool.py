@@ -1,0 +1,89 @@
+"""The actor pool of tracers on several machines: chunks handed out in order, each exactly once
+however many tracers claim at the same time, every claim recording its owner; a tracer renders
+its head and then the chunks it claims, bit-identical to render_image."""
+
+import threading
+
+import numpy as np
+import pytest
+
+from cluster.connect import connect, disconnect
+from tests.worker.test_replica import studio
+from tracer.commit_codec import encode_state
+from tracer.compile import compile_scene
+from tracer.render import render_image
+from worker.remote_pool import WAIT, PoolTables, RemotePool, remote_tables
+from worker.tracer_actor import Tracer
+
+
+def test_tables_hand_chunks_out_in_order_and_record_owners():
+    tables = PoolTables()
+    assert tables.open("a", [(5, 9), (0, 5), (9, 10)]) == 3
+    tables.open("b", [(0, 1)])
+    assert tables.claim("a", 2) == (5, 9)
+    assert tables.claim("a", 7) == (0, 5)
+    assert tables.rows("a") == [(5, 9, 2), (0, 5, 7), (9, 10, -1)]
+    assert tables.claim("b", 1) == (0, 1) and tables.claim("b", 1) is None  # tables apart
+    assert tables.claim("a", 2) == (9, 10) and tables.claim("a", 2) is None
+    tables.close("a")
+    assert tables.claim("a", 2) is None and tables.rows("a") == []
+    assert tables.claim("not open yet", 0) == WAIT  # its open is on its way: ask again
+    with pytest.raises(ValueError, match="empty"):
+        tables.open("c", [(3, 3)])
+
+
+@pytest.fixture(scope="module")
+def ray_session():
+    connection = connect(num_cpus=2)
+    yield connection
+    if connection.started:
+        disconnect()
+
+
+def test_racing_claims_get_every_chunk_exactly_once(ray_session):
+    """Four claimers (each sending its next claim ahead) drain 400 chunks: every chunk is
+    taken once, by the owner the table records."""
+    import ray
+
+    tables = remote_tables(ray.get_runtime_context().get_node_id())
+    chunks = [(k, k + 1) for k in range(400)]
+    pool = RemotePool.create(tables, chunks)
+    taken: dict[int, list[tuple[int, int]]] = {}
+
+    def drain(owner: int) -> None:
+        taken[owner] = list(RemotePool(tables, pool.key).claims(owner))
+
+    threads = [threading.Thread(target=drain, args=(owner,)) for owner in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=60)
+    claimed = sorted(chunk for mine in taken.values() for chunk in mine)
+    assert claimed == chunks
+    for owner, mine in taken.items():
+        assert sorted(pool.claimed(owner)) == sorted(mine)
+    assert pool.unclaimed() == []
+    pool.unlink()
+    ray.kill(tables)
+
+
+def test_a_tracer_renders_its_head_then_the_chunks_it_claims(ray_session):
+    import ray
+
+    state = studio()
+    tracer = Tracer("t", cpus=1)
+    tracer.sync_snapshot(encode_state(state))
+    expected = render_image(compile_scene(state), frame=2)[0].reshape(-1, 3)
+    width = state.camera.width
+    tables = remote_tables(ray.get_runtime_context().get_node_id())
+    pool = RemotePool.create(tables, [(20, 24), (0, 3), (8, 9)])
+    out = tracer.render(2, 0, [], None, None, 3, 8, pool=(pool.ticket, 5))
+    assert pool.claimed(5) == [(20, 24), (0, 3), (8, 9)]
+    assert np.array_equal(out.rgb, expected[3 * width : 8 * width])
+    assert [(c.u0, c.u1) for c in out.more] == [(20, 24), (0, 3), (8, 9)]
+    for chunk in out.more:
+        assert np.array_equal(chunk.rgb, expected[chunk.u0 * width : chunk.u1 * width])
+    pool.unlink()
+    late = tracer.render(2, 0, [], None, None, 0, 1, pool=(pool.ticket, 5))
+    assert late.more == []  # closed: nothing left to claim
+    ray.kill(tables)
