@@ -398,10 +398,10 @@ def main(argv: list[str] | None = None) -> int:
     # Room for every set-up's tracers at once (they take turns; only one renders at a time).
     runs = len(args.balancers) + (0 if args.no_oracle else 1)
     cpus = max(int(sum(n * cpus for n, cpus in SETUPS.values())), 2 * runs)
-    nodes = start_nodes(cpus // 2) if args.nodes else None
-    connect(nodes.address if nodes else None, num_cpus=None if nodes else cpus)
+    nodes = start_nodes((cpus + 1) // 2) if args.nodes else None
     payload: dict = {"options": vars(args)}
     try:
+        connect(nodes.address if nodes else None, num_cpus=None if nodes else cpus)
         if "scaling" not in args.skip:
             big = scaling(args.size, args.spp, args.repeats)
             small = scaling(args.overhead_size, args.spp, args.repeats)

@@ -18,8 +18,9 @@ Balancers (``make_balancer(name)``; formulas and measurements in ``docs/balancin
   (the min-max contiguous partition of the predicted costs).
 - ``cost-aware-tail`` (``cluster.tail``): ``cost-aware``'s split sent as a head of about 90% of
   each range, the rest handed out in shrinking chunks to whichever tracer finishes first.
-  ``cost-aware`` (the default) keeps such a tail only in a shared pool, where tracers claim
-  chunks themselves; the split alone is ``cost-aware-static``.
+  ``cost-aware`` (the default) keeps such a tail only in the file pool of tracers sharing the
+  coordinator's machine, where they claim chunks themselves; the split alone is
+  ``cost-aware-static``.
 
 State is kept per tracer id, so tracers may join and leave between frames: an id a balancer has
 not seen gets a default (an even or mean share). Balancers are deterministic: the same calls
@@ -721,8 +722,9 @@ class CostAwareTail(CostAware):
         super().__init__(**cost_aware)
         self.call_tail = call_tail
         self.remote_pool = remote_pool
-        """Whether the coordinator may put the tail in the actor pool of tracers on several
-        machines (:mod:`worker.remote_pool`); the file pool of one machine is always used."""
+        """Whether the coordinator may put the tail in the actor pool (:mod:`worker.remote_pool`:
+        tracers on several machines, or file pools not possible); the file pool of tracers
+        sharing the coordinator's machine is used whenever pools are allowed."""
         if fraction is not None and not 0.0 < fraction <= 1.0:
             raise ValueError("fraction must be in (0, 1]")
         if not divisor > 0.0 or not 0.0 <= min_chunk < 1.0 or not min(z, min_seconds) >= 0.0:
@@ -811,6 +813,7 @@ class CostAwareTail(CostAware):
             else self.min_seconds,
             timed=timed,
             segments=segments,
+            floor_fastest=pooled and claim_seconds > 0.0,
         )
 
     def observe(self, height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:

@@ -28,12 +28,12 @@ With a pool the tail does not go out in calls: step 1 writes all of it into a sh
 every tracer's one call names the pool, so a tracer renders its head and then claims chunks
 itself until none is left; its result carries the chunks (``UnitsResult.more``). When every
 tracer of the frame runs on the coordinator's own Ray node the pool is a small file in shared
-memory (:mod:`worker.line_pool`, claims microseconds apart; ``cost-aware``, the default,
-keeps a tail only there); otherwise, for ``cost-aware-tail``, a Ray actor on the
-coordinator's node holds it (:mod:`worker.remote_pool`: a claim is one actor call, sent
-while the chunk before it renders). Every claim records its owner, so the units a lost or
-stalled tracer held are known. ``cost-aware-tail`` hands its tail out in calls where no pool
-is allowed (``line_pool=False``, Ray Client).
+memory (:mod:`worker.line_pool`, claims microseconds apart; ``cost-aware``, the default, keeps
+a tail only there); otherwise (or where file locks are missing), for ``cost-aware-tail``, a Ray
+actor on the coordinator's node holds it (:mod:`worker.remote_pool`: a claim is one actor call,
+sent while the chunk before it renders). Every claim records its owner, so the units a lost or
+stalled tracer held are known. ``cost-aware-tail`` hands its tail out in calls where no pool is
+allowed (``line_pool=False``, Ray Client).
 
 ``render_animation`` pipelines frames (Bikker's double buffering, 7.3.4): frame N+1's pose is
 committed to the graph and its render calls are submitted while frame N renders, so each
@@ -94,7 +94,7 @@ from tracer.scene_model import SceneState
 from worker.line_pool import LinePool
 from worker.line_pool import supported as line_pool_supported
 from worker.line_pool import sweep as line_pool_sweep
-from worker.remote_pool import REMOTE_CLAIM_SECONDS, RemotePool, remote_tables
+from worker.remote_pool import REMOTE_CLAIM_SECONDS, PoolLost, RemotePool, remote_tables
 from worker.replica import KEEP_VERSIONS
 from worker.tracer_actor import MAX_SCENES, OutOfSync, TracerInfo, UnitsResult, remote_tracer
 from worker.work_units import WorkUnits
@@ -120,8 +120,6 @@ INLINE_COMMITS = 64 * 1024
 """Commit buffers larger than this many bytes go through the object store (put once, shared
 by every tracer that needs the same buffer) instead of inside each render call."""
 BUFFERS_KEPT = 8
-COORDINATOR_OWNER = 2**31
-"""The owner id under which the coordinator claims a pool's chunks it hands out itself."""
 
 
 class ClusterError(RuntimeError):
@@ -221,7 +219,7 @@ class _Slot:
     warming: Any = None
     """The pending ``warm_up`` call of a tracer placed on a new node."""
     pool_blind: bool = False
-    """It could not open a shared line pool (until it is seen on another node)."""
+    """It could not open a shared pool file (until it is seen on another node)."""
 
 
 @dataclass(eq=False)
@@ -236,7 +234,7 @@ class _Task:
     resent: bool = False
     """Sent again after OutOfSync (a second OutOfSync gets a snapshot)."""
     owner: int | None = None
-    """The tracer's id in the frame's shared line pool (None: the call takes no chunks)."""
+    """The tracer's id in the frame's shared pool (None: the call takes no chunks)."""
 
 
 @dataclass(eq=False)
@@ -261,6 +259,8 @@ class FrameJob:
     """The dynamic tail's units not handed out yet (``cost-aware-tail``)."""
     pool: LinePool | RemotePool | None = None
     """The dynamic tail as a shared pool: a file when every tracer shares this machine."""
+    pool_chunks: list[tuple[int, int]] = field(default_factory=list)
+    """The pool's chunks, as written into it."""
     arrivals: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     """Per tracer, (arrival time, busy seconds) of each accepted result, in arrival order."""
     late_heads: dict[str, float] = field(default_factory=dict)
@@ -351,6 +351,7 @@ class Coordinator:
         self._last_done = 0.0
         self._pools: set[LinePool | RemotePool] = set()
         self._pool_tables = None  # the actor holding remote pools, made when first needed
+        self._pool_keys = itertools.count()
         if not ray.is_initialized():
             connect()
         self._node = ray.get_runtime_context().get_node_id()
@@ -604,10 +605,16 @@ class Coordinator:
                     pass
         self._orphans.clear()
         for pool in self._pools:
-            pool.unlink()
+            try:
+                pool.unlink()
+            except RayError:  # pragma: no cover - Ray is already down
+                pass
         self._pools.clear()
         if self._pool_tables is not None:
-            ray.kill(self._pool_tables)
+            try:
+                ray.kill(self._pool_tables)
+            except RayError:  # pragma: no cover - already gone
+                pass
             self._pool_tables = None
         self._snapshots.clear()
         self._buffers.clear()
@@ -737,13 +744,14 @@ class Coordinator:
     def _open_pool(self, job: FrameJob, local: bool) -> None:
         """Move ``job``'s whole tail into a shared pool its tracers claim from: a file when
         they all share this machine (``local``), else a table in the pool actor."""
-        chunks = job.tail.take_all()
+        chunks = job.pool_chunks = job.tail.take_all()
         if local:
             job.pool = LinePool.create(chunks)
         else:
             if self._pool_tables is None:
                 self._pool_tables = remote_tables(self._node)
-            job.pool = RemotePool.create(self._pool_tables, chunks)
+                ray.get(self._pool_tables.rows.remote(-1))  # up before tracers claim from it
+            job.pool = RemotePool.create(self._pool_tables, chunks, next(self._pool_keys))
         self._pools.add(job.pool)
         for u0, u1 in chunks:
             job.assembler.assign(u0, u1)
@@ -755,18 +763,45 @@ class Coordinator:
 
     def _release_pool(self, job: FrameJob) -> None:
         """When no pooled call is left to claim them (a tracer could not open the pool, or died
-        before it was empty), hand the pool's unclaimed chunks out in calls of their own."""
+        before it was empty, or the pool actor was lost), hand the pool's units that nothing
+        delivered or owes out in calls of their own (without asking the pool: every chunk is
+        claimed or unclaimed by now, and the answer would be an actor call)."""
         if job.pool is None or any(t.owner is not None for t in job.pending.values()):
             return
-        while (chunk := job.pool.claim(COORDINATOR_OWNER)) is not None:
-            self._reassign(job, *chunk, None, 1)
+        owed = np.zeros(job.units.count, bool)
+        for task in job.pending.values():
+            owed[task.u0 : task.u1] = True
+        left = [
+            run
+            for u0, u1 in job.pool_chunks
+            for a, b in job.assembler.missing(u0, u1)
+            for run in runs(~owed[a:b], offset=a)
+        ]
+        if left:  # not the normal end of a frame: is the pool still there?
+            try:
+                job.pool.unclaimed()
+            except PoolLost as error:
+                self._lose_pool(error)
+        for u0, u1 in left:
+            self._reassign(job, u0, u1, None, 1)
 
     def _owed(self, job: FrameJob, task: _Task) -> list[tuple[int, int]]:
-        """The unit ranges ``task`` may deliver: its own range and the pool chunks it claimed."""
+        """The unit ranges ``task`` may deliver: its own range and the pool chunks it claimed
+        (none known when the pool actor is lost: ``_release_pool`` hands those out)."""
         own = [(task.u0, task.u1)] if task.u1 > task.u0 else []
         if task.owner is None or job.pool is None:
             return own
-        return own + job.pool.claimed(task.owner)
+        try:
+            return own + job.pool.claimed(task.owner)
+        except PoolLost as error:
+            self._lose_pool(error)
+            return own
+
+    def _lose_pool(self, error: Exception) -> None:
+        """The pool actor is gone (its node's memory monitor, say): the next pooled frame
+        starts a new one."""
+        log.warning("the pool actor is lost: %s", _first_line(error))
+        self._pool_tables = None
 
     def _feed(self, job: FrameJob, slot: _Slot) -> None:
         """Send ``slot`` the next chunk of ``job``'s dynamic tail, if any is left."""
@@ -885,7 +920,7 @@ class Coordinator:
 
     def _abandon(self, job: FrameJob) -> None:
         """Give ``job`` up (an error, or its caller stopped): its late answers are discarded
-        on arrival and its line pool is removed."""
+        on arrival and its pool is removed."""
         self._orphans.update(job.pending)
         job.pending.clear()
         self._close_pool(job)
@@ -970,14 +1005,16 @@ class Coordinator:
         slot = task.slot
         try:
             out = ray.get(ref)
-        except RayActorError as error:
-            if task.submitted >= slot.failed_at:
-                self._tracer_failed(slot, error)
+        except RayTaskError as error:  # an exception inside the tracer: try elsewhere
+            # (first: an error the tracer met, e.g. from another actor, is a RayTaskError that
+            # is also a RayActorError, and the tracer itself is alive)
+            log.warning("tracer %s failed on frame %d: %s", slot.id, job.frame, _first_line(error))
             job.failures += 1
             self._recover(job, task, error)
             return
-        except RayTaskError as error:  # an exception inside the tracer: try elsewhere
-            log.warning("tracer %s failed on frame %d: %s", slot.id, job.frame, _first_line(error))
+        except RayActorError as error:
+            if task.submitted >= slot.failed_at:
+                self._tracer_failed(slot, error)
             job.failures += 1
             self._recover(job, task, error)
             return
@@ -1010,7 +1047,7 @@ class Coordinator:
         # the resend above keeps it busy, and the chunk waits until the tracer is in sync).
         self._feed(job, slot)
         if task.owner is not None and out.more is None:
-            log.warning("tracer %s cannot open the frame's line pool", slot.id)
+            log.warning("tracer %s cannot open the frame's pool file", slot.id)
             slot.pool_blind = True
         busy = 0.0
         for part, kind in [(out, task.kind), *((chunk, "tail") for chunk in out.more or ())]:
@@ -1063,7 +1100,12 @@ class Coordinator:
             for u0, u1 in self._owed(job, other):
                 owed[u0:u1] = True
         if job.pool is not None and any(t.owner is not None for t in job.pending.values()):
-            for u0, u1 in job.pool.unclaimed():  # a pooled call still running will claim them
+            try:
+                unclaimed = job.pool.unclaimed()  # a pooled call still running claims them
+            except PoolLost as error:
+                self._lose_pool(error)
+                unclaimed = []
+            for u0, u1 in unclaimed:
                 owed[u0:u1] = True
         mine = np.zeros(job.units.count, bool)
         for u0, u1 in self._owed(job, task):
@@ -1254,11 +1296,11 @@ class Coordinator:
             task = self._orphans.pop(ref)
             try:
                 ray.get(ref)
+            except RayTaskError:
+                continue
             except RayActorError as error:
                 if task.submitted >= task.slot.failed_at:
                     self._tracer_failed(task.slot, error)
-                continue
-            except RayTaskError:
                 continue
             task.slot.last_done = time.perf_counter()
             self.stats["stale_discarded"] += 1

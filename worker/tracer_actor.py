@@ -37,7 +37,7 @@ from tracer.query import SceneHits
 from tracer.render import render_lines, render_pixels
 from tracer.threads import default_threads
 from worker.line_pool import LinePool
-from worker.remote_pool import RemotePool
+from worker.remote_pool import PoolLost, RemotePool
 from worker.replica import SceneReplica
 from worker.work_units import WorkUnits
 
@@ -270,8 +270,9 @@ class Tracer:
 
     @staticmethod
     def _drain(pool: tuple[str | RemotePool, int], render_units) -> list[UnitsResult] | None:
-        """Claim and render chunks of the shared pool until none is left; None if the pool
-        is a file that cannot be opened here."""
+        """Claim and render chunks of the shared pool until none is left (or the pool actor
+        is lost: the coordinator hands out what is left); None if the pool is a file that
+        cannot be opened here."""
         where, owner = pool
         since = time.perf_counter()
         try:
@@ -282,9 +283,12 @@ class Tracer:
             return None
         chunks = []
         with shared:
-            for chunk in shared.claims(owner):
-                chunks.append(render_units(*chunk, since))  # its seconds include the claim
-                since = time.perf_counter()
+            try:
+                for chunk in shared.claims(owner):
+                    chunks.append(render_units(*chunk, since))  # its seconds include the claim
+                    since = time.perf_counter()
+            except PoolLost:
+                pass
         return chunks
 
     def warm_up(self) -> dict:

@@ -783,6 +783,40 @@ def test_a_node_removed_mid_animation_does_not_stop_the_job(headless_cluster):
             coordinator.close()
 
 
+def test_a_lost_pool_actor_costs_no_frame_and_no_tracer(headless_cluster):
+    """Tracers on two nodes pool their tail in the actor pool (``cost-aware-tail``); the
+    pool actor is killed between frames and again mid-frame: every frame still equals
+    render_image, no tracer is taken for lost, and the next frame gets a new pool actor."""
+    graph = SceneGraph(studio())
+    cluster = headless_cluster
+    coordinator = None
+    try:
+        for _ in range(2):
+            cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        connect(cluster.address)
+        coordinator = Coordinator(
+            graph, balancer="cost-aware-tail", straggler_floor=30, delays=[0.05, 0.05]
+        )
+        frames = [coordinator.render_frame(0)]
+        ray.kill(coordinator._pool_tables)  # between frames: the next one finds it dead
+        frames.append(coordinator.render_frame(1))
+        job = coordinator.submit_frame(2)
+        time.sleep(0.02)  # mid-frame, while the tracers render their heads
+        if coordinator._pool_tables is not None:
+            ray.kill(coordinator._pool_tables)
+        frames.append(coordinator.wait_frame(job))
+        frames += [coordinator.render_frame(k) for k in (3, 4)]
+        for frame in frames:
+            assert np.array_equal(frame.rgb, reference(graph.state, frame.frame)), frame.frame
+        assert coordinator.stats["failures"] == 0
+        assert ray.get(coordinator._pool_tables.rows.remote(-1), timeout=10) == []  # a new one
+        assert frames[-1].pooled and "tail" in {r.kind for r in frames[-1].ranges}
+    finally:
+        if coordinator is not None:
+            coordinator.close()
+
+
 def test_a_node_that_joins_gets_a_tracer_from_the_next_frame(headless_cluster):
     """One tracer per node (the default) on a head without CPUs and one worker; a second
     worker joins, ``place_new_nodes`` starts a tracer there (once: a second call finds no new

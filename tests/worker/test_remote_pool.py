@@ -18,18 +18,18 @@ from worker.tracer_actor import Tracer
 
 def test_tables_hand_chunks_out_in_order_and_record_owners():
     tables = PoolTables()
-    assert tables.open("a", [(5, 9), (0, 5), (9, 10)]) == 3
-    tables.open("b", [(0, 1)])
-    assert tables.claim("a", 2) == (5, 9)
-    assert tables.claim("a", 7) == (0, 5)
-    assert tables.rows("a") == [(5, 9, 2), (0, 5, 7), (9, 10, -1)]
-    assert tables.claim("b", 1) == (0, 1) and tables.claim("b", 1) is None  # tables apart
-    assert tables.claim("a", 2) == (9, 10) and tables.claim("a", 2) is None
-    tables.close("a")
-    assert tables.claim("a", 2) is None and tables.rows("a") == []
-    assert tables.claim("not open yet", 0) == WAIT  # its open is on its way: ask again
+    assert tables.open(0, [(5, 9), (0, 5), (9, 10)]) == 3
+    tables.open(1, [(0, 1)])
+    assert tables.claim(0, 2) == (5, 9)
+    assert tables.claim(0, 7) == (0, 5)
+    assert tables.rows(0) == [(5, 9, 2), (0, 5, 7), (9, 10, -1)]
+    assert tables.claim(1, 1) == (0, 1) and tables.claim(1, 1) is None  # tables apart
+    assert tables.claim(0, 2) == (9, 10) and tables.claim(0, 2) is None
+    tables.close(0)
+    assert tables.claim(0, 2) is None and tables.rows(0) == []  # closed
+    assert tables.claim(2, 0) == WAIT  # above the newest table: its open is on its way
     with pytest.raises(ValueError, match="empty"):
-        tables.open("c", [(3, 3)])
+        tables.open(3, [(3, 3)])
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +47,7 @@ def test_racing_claims_get_every_chunk_exactly_once(ray_session):
 
     tables = remote_tables(ray.get_runtime_context().get_node_id())
     chunks = [(k, k + 1) for k in range(400)]
-    pool = RemotePool.create(tables, chunks)
+    pool = RemotePool.create(tables, chunks, 0)
     taken: dict[int, list[tuple[int, int]]] = {}
 
     def drain(owner: int) -> None:
@@ -76,7 +76,7 @@ def test_a_tracer_renders_its_head_then_the_chunks_it_claims(ray_session):
     expected = render_image(compile_scene(state), frame=2)[0].reshape(-1, 3)
     width = state.camera.width
     tables = remote_tables(ray.get_runtime_context().get_node_id())
-    pool = RemotePool.create(tables, [(20, 24), (0, 3), (8, 9)])
+    pool = RemotePool.create(tables, [(20, 24), (0, 3), (8, 9)], 0)
     out = tracer.render(2, 0, [], None, None, 3, 8, pool=(pool.ticket, 5))
     assert pool.claimed(5) == [(20, 24), (0, 3), (8, 9)]
     assert np.array_equal(out.rgb, expected[3 * width : 8 * width])
@@ -87,3 +87,22 @@ def test_a_tracer_renders_its_head_then_the_chunks_it_claims(ray_session):
     late = tracer.render(2, 0, [], None, None, 0, 1, pool=(pool.ticket, 5))
     assert late.more == []  # closed: nothing left to claim
     ray.kill(tables)
+
+
+def test_a_lost_pool_actor_ends_the_claims_not_the_render(ray_session):
+    """The pool actor dies: claims raise PoolLost, and a tracer's pooled call still returns
+    its head (the coordinator hands out the chunks nobody delivered)."""
+    import ray
+
+    from worker.remote_pool import PoolLost
+
+    state = studio()
+    tracer = Tracer("t", cpus=1)
+    tracer.sync_snapshot(encode_state(state))
+    tables = remote_tables(ray.get_runtime_context().get_node_id())
+    pool = RemotePool.create(tables, [(9, 12)], 0)
+    ray.kill(tables)
+    with pytest.raises(PoolLost):
+        pool.claimed()
+    out = tracer.render(2, 0, [], None, None, 3, 8, pool=(pool.ticket, 1))
+    assert (out.u0, out.u1) == (3, 8) and out.more == []
