@@ -233,10 +233,11 @@ def simulate_calls(
 ) -> dict[str, np.ndarray]:
     """Every frame of ``cost`` (``spans`` units per line) as the coordinator runs it, call by
     call (:func:`frame_calls`), or with ``claim`` (seconds per chunk) as tracers claiming from
-    a shared pool run it (:func:`frame_pool`), chunks at least twice a claim. ``remote``: the
-    tracers are on several machines, so the pool is the actor pool (only for balancers that
-    use it, ``remote_pool``; the others run call by call): chunks at least twice its round
-    trip, ``REMOTE_CLAIM_SECONDS`` (claims are sent ahead, so ``claim`` is less).
+    a shared pool run it (:func:`frame_pool`). ``remote``: the tracers are on several
+    machines, so the pool is the actor pool (only for balancers that use it, ``remote_pool``;
+    the others run call by call): claims answered ``REMOTE_CLAIM_SECONDS`` after they are
+    sent, each sent while the chunk before renders (``claim`` is what it costs the tracer),
+    chunks planned as the coordinator plans them.
     Returns per frame: ``idle`` (Table 16's measure with the gaps between a tracer's calls
     counted as idle: every tracer's window runs from its first render to the latest end of
     any), ``span_idle`` (from the first send to the last result: latency included), ``wall``
@@ -248,7 +249,9 @@ def simulate_calls(
     pooled = claim is not None and (not remote or getattr(balancer, "remote_pool", False))
     for f in range(frames):
         if hasattr(balancer, "plan"):
-            claim_seconds = (REMOTE_CLAIM_SECONDS if remote else claim) if pooled else 0.0
+            # as the coordinator plans: chunks sized for the actor pool's round trip, the
+            # file pool's own least chunk
+            claim_seconds = REMOTE_CLAIM_SECONDS if pooled and remote else 0.0
             plan = balancer.plan(
                 height, ids, pooled=pooled, spans=spans, claim_seconds=claim_seconds
             )
@@ -258,7 +261,8 @@ def simulate_calls(
         times = speeds / jitter[f]  # this frame's speeds
         if pooled and plan is not None:
             chunks = plan.take_all()
-            measures, reports = frame_pool(cost[f], times, ids, heads, chunks, latency, claim)
+            trip = REMOTE_CLAIM_SECONDS if remote else 0.0
+            measures, reports = frame_pool(cost[f], times, ids, heads, chunks, latency, claim, trip)
         else:
             measures, reports = frame_calls(
                 cost[f], times, ids, heads, plan, overhead, latency, gap
@@ -337,11 +341,17 @@ def frame_pool(
     chunks: list[tuple[int, int]],
     latency: float,
     claim: float,
+    round_trip: float = 0.0,
 ) -> tuple[dict[str, float], list[TracerReport]]:
     """One frame with the tail in a shared unit pool: every tracer gets one call (``latency``
     seconds each way), renders its head (``cost / speed``), then claims chunks in order, each
     ``claim`` seconds plus its render, the tracer free first claiming first, until none is
-    left. A call's fixed cost is the latency alone (one call per tracer, as in the cluster)."""
+    left. A call's fixed cost is the latency alone (one call per tracer, as in the cluster).
+    With a ``round_trip`` (the actor pool) claims are answered that long after they are sent,
+    in the order they reach the pool, and each is sent when the chunk before it starts
+    (:func:`frame_pool_ahead`)."""
+    if round_trip > 0.0:
+        return frame_pool_ahead(unit_cost, speeds, ids, heads, chunks, latency, claim, round_trip)
     count = speeds.size
     free = np.full(count, latency)
     busy = np.zeros(count)
@@ -363,6 +373,61 @@ def frame_pool(
         _, i = heapq.heappop(ready)
         render(i, y0, y1, claim)
         heapq.heappush(ready, (free[i], i))
+    window = float(free.max() - latency)
+    end = float(free.max() + latency)
+    measures = {
+        "idle": 100 * float(np.sum(window - busy)) / (count * window) if window else 0.0,
+        "span_idle": 100 * float(np.sum(end - busy)) / (count * end) if end else 0.0,
+        "wall": end,
+        "calls": float(count),
+    }
+    return measures, reports
+
+
+def frame_pool_ahead(
+    unit_cost: np.ndarray,
+    speeds: np.ndarray,
+    ids: list[str],
+    heads: list[tuple[int, int]],
+    chunks: list[tuple[int, int]],
+    latency: float,
+    claim: float,
+    round_trip: float,
+) -> tuple[dict[str, float], list[TracerReport]]:
+    """:func:`frame_pool` for the actor pool: a tracer sends its first claim when its head is
+    done and each later one when it starts the chunk before (so it holds the next chunk while
+    rendering); the pool answers claims in the order they arrive, half a ``round_trip`` after
+    they are sent, and the answer is back half a round trip later. A chunk starts when the
+    tracer is free and its answer is back; a wait for an answer counts in the chunk's seconds
+    (as the tracers report them), the wait for the last, empty answer in no one's."""
+    count = speeds.size
+    free = np.full(count, latency)
+    busy = np.zeros(count)
+    reports: list[TracerReport] = []
+    for i, (y0, y1) in enumerate(heads):
+        if y1 > y0:
+            seconds = unit_cost[y0:y1].sum() / speeds[i]
+            free[i] += seconds
+            busy[i] += seconds
+            cost = unit_cost[y0:y1].astype(np.int64)
+            reports.append(TracerReport(ids[i], y0, y1, float(seconds), cost))
+    arrivals = [(free[i] + round_trip / 2, i) for i in range(count)]
+    heapq.heapify(arrivals)
+    waiting = list(chunks)[::-1]
+    while arrivals:
+        arrived, i = heapq.heappop(arrivals)
+        answer = arrived + round_trip / 2
+        if not waiting:
+            free[i] = max(free[i], answer)
+            continue
+        y0, y1 = waiting.pop()
+        start = max(free[i], answer)
+        seconds = (start - free[i]) + unit_cost[y0:y1].sum() / speeds[i] + claim
+        free[i] += seconds
+        busy[i] += seconds
+        cost = unit_cost[y0:y1].astype(np.int64)
+        reports.append(TracerReport(ids[i], y0, y1, float(seconds), cost))
+        heapq.heappush(arrivals, (start + round_trip / 2, i))
     window = float(free.max() - latency)
     end = float(free.max() + latency)
     measures = {
@@ -833,8 +898,7 @@ def main(argv: list[str] | None = None) -> int:
         metavar="CLAIM_MS",
         help="with --calls: the tail goes to a shared pool the tracers claim chunks from, "
         "CLAIM_MS per claim (default %(const)s ms: the file pool of tracers sharing one "
-        "machine, a file lock, a kernel launch and the chunk's result), instead of Ray calls; "
-        "chunks are at least twice a claim",
+        "machine, a file lock, a kernel launch and the chunk's result), instead of Ray calls",
     )
     parser.add_argument(
         "--remote-pool",

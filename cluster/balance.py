@@ -813,7 +813,6 @@ class CostAwareTail(CostAware):
             else self.min_seconds,
             timed=timed,
             segments=segments,
-            floor_fastest=pooled and claim_seconds > 0.0,
         )
 
     def observe(self, height: int, reports: Sequence[TracerReport], spans: int = 1) -> None:

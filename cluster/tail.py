@@ -49,9 +49,6 @@ class TailPlan:
     """Least chunk, as a fraction of the tracer's predicted frame time."""
     min_seconds: float = 0.0
     """Least chunk in predicted seconds (used when ``timed``: the speeds were measured)."""
-    floor_fastest: bool = False
-    """``take_all``: the least chunk is ``min_seconds`` of the *fastest* tracer's time (a
-    claim sent ahead must be back before even it finishes the chunk before)."""
     timed: bool = False
     segments: deque[list[int]] = field(default_factory=deque)
     """Tail lines not handed out yet: ``[y0, y1)`` runs in the order they are handed out."""
@@ -68,10 +65,9 @@ class TailPlan:
         """Give up the lines not handed out yet (someone else renders them)."""
         self.segments.clear()
 
-    def next_chunk(self, tracer: str, floor_speed: float | None = None) -> LineRange | None:
+    def next_chunk(self, tracer: str) -> LineRange | None:
         """The next chunk for ``tracer`` (any id: an unknown one counts at the mean speed), or
-        None when the tail is used up; ``floor_speed`` (default the tracer's) converts
-        ``min_seconds`` to cost."""
+        None when the tail is used up."""
         if not self.segments:
             return None
         total_speed = sum(self.speeds.values()) or 1.0
@@ -81,7 +77,7 @@ class TailPlan:
         target = max(
             self.remaining_cost() * share / self.divisor,
             self.min_chunk * frame_cost * share,
-            self.min_seconds * (floor_speed or speed) if self.timed else 0.0,
+            self.min_seconds * speed if self.timed else 0.0,
         )
         segment = self.segments[0]
         a, b = segment
@@ -103,9 +99,8 @@ class TailPlan:
         slow tracer took one: 2.02 against 3.15% idle with 128 tracers of speeds 0.5-2,
         ``bench/balance_sim.py --calls --pool``)."""
         slowest = min(self.speeds, key=self.speeds.get) if self.speeds else ""
-        fastest = max(self.speeds.values(), default=None) if self.floor_fastest else None
         chunks = []
-        while (chunk := self.next_chunk(slowest, fastest)) is not None:
+        while (chunk := self.next_chunk(slowest)) is not None:
             chunks.append(chunk)
         return chunks
 

@@ -7,13 +7,15 @@ call instead of a file lock. Ray runs an actor's calls one at a time, so claims 
 A call takes up to about a millisecond (against microseconds for the file), so after its
 first claim a tracer asks for its next chunk *before* it renders the current one
 (:meth:`RemotePool.claims`), and chunks are at least twice ``REMOTE_CLAIM_SECONDS`` of the
-fastest tracer's time, so the answer is back by the time it needs it. Keys are numbers the
+slowest tracer's time, so the answer is usually back by the time it needs it (a faster
+tracer may wait on the smallest chunks: in the simulator a floor in the fastest tracer's
+time cost more than the waits it saved). Keys are numbers the
 coordinator counts up: a claim for a key above the newest table opened arrives before its
 ``open`` (Ray orders calls per caller only) and is told to ask again; one at or below it was
-closed. In the simulator (``bench/balance_sim.py --calls --remote-pool``) this keeps idle
-under 3% with 8-128 tracers on separate machines, where the static split idles 5-12%; the
-model does not charge for the first claim's round trip, the chunk a tracer holds while it
-renders the one before, nor a queue at the actor (128 tracers claim ~10^4 times a second).
+closed. In the simulator (``bench/balance_sim.py --calls --remote-pool``, which models the
+round trips, claims sent ahead and answered in arrival order, but no queue at the actor)
+this idles 1.3 / 2.7 / 4.1% with 8 / 32 / 128 tracers on separate machines, where the
+static split idles 5.1 / 8.1 / 11.9%.
 
 :class:`RemotePool` is the handle both sides use: the coordinator creates it (``create``),
 passes it to every tracer's render call, and asks it which chunks an owner claimed when a

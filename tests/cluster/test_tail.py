@@ -312,21 +312,3 @@ def test_pooled_chunks_are_sized_for_the_slowest_tracer():
     assert chunks[0] == (0, 100)  # 1000 x 1/5 / 2, not the mean tracer's 1000 x 1/2 / 2
     assert [b - a for a, b in chunks] == sorted((b - a for a, b in chunks), reverse=True)
     assert chunks[-1][1] == 1000 and all(a == b for (_, a), (b, _) in itertools.pairwise(chunks))
-
-
-def test_remote_pool_chunks_are_long_enough_for_the_fastest_tracer():
-    """With claims sent ahead (the actor pool), even the fastest tracer must take at least
-    ``min_seconds`` over a chunk, so its next claim is back in time."""
-    prefix = np.arange(1001, dtype=np.float64)
-    plan = TailPlan(
-        tracers=["slow", "fast"],
-        heads=[(0, 0), (0, 0)],
-        prefix=prefix,
-        speeds={"slow": 1.0, "fast": 4.0},
-        min_seconds=10.0,
-        timed=True,
-        floor_fastest=True,
-        segments=deque([[0, 1000]]),
-    )
-    chunks = plan.take_all()
-    assert min(b - a for a, b in chunks[:-1]) >= 40  # 10 s of the fast tracer's time
