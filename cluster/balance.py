@@ -845,9 +845,10 @@ class CostAwarePooled(CostAwareTail):
     chunk is cheapest, in the file pool of tracers that all share the coordinator's machine
     (:mod:`worker.line_pool`). Across machines the static split alone: ``cost-aware-tail``
     puts the tail in the actor pool there (:mod:`worker.remote_pool`), which the simulator
-    finds worth it (idle under 3% with 8-128 tracers against 5-12%) but which made frames
-    7-15% slower with two tracers on two Ray nodes of the two-core development machine, where
-    the pool actor waits for a core (``docs/balancing.md``)."""
+    finds worth it (1.3 / 2.7 / 4.1% idle with 8 / 32 / 128 tracers against 5.1 / 8.1 /
+    11.9%) but which made frames 4-11% slower with two tracers on two Ray nodes of the
+    two-core development machine, where the pool actor waits for a core
+    (``docs/balancing.md``)."""
 
     name = "cost-aware"
 
