@@ -352,36 +352,14 @@ def frame_pool(
     (:func:`frame_pool_ahead`)."""
     if round_trip > 0.0:
         return frame_pool_ahead(unit_cost, speeds, ids, heads, chunks, latency, claim, round_trip)
-    count = speeds.size
-    free = np.full(count, latency)
-    busy = np.zeros(count)
-    reports: list[TracerReport] = []
-
-    def render(i: int, y0: int, y1: int, extra: float) -> None:
-        seconds = unit_cost[y0:y1].sum() / speeds[i] + extra
-        free[i] += seconds
-        busy[i] += seconds
-        cost = unit_cost[y0:y1].astype(np.int64)
-        reports.append(TracerReport(ids[i], y0, y1, float(seconds), cost))
-
-    for i, (y0, y1) in enumerate(heads):
-        if y1 > y0:
-            render(i, y0, y1, 0.0)
-    ready = [(free[i], i) for i in range(count)]
+    tracers = _PoolTracers(unit_cost, speeds, ids, latency, heads)
+    ready = [(tracers.free[i], i) for i in range(speeds.size)]
     heapq.heapify(ready)
     for y0, y1 in chunks:
         _, i = heapq.heappop(ready)
-        render(i, y0, y1, claim)
-        heapq.heappush(ready, (free[i], i))
-    window = float(free.max() - latency)
-    end = float(free.max() + latency)
-    measures = {
-        "idle": 100 * float(np.sum(window - busy)) / (count * window) if window else 0.0,
-        "span_idle": 100 * float(np.sum(end - busy)) / (count * end) if end else 0.0,
-        "wall": end,
-        "calls": float(count),
-    }
-    return measures, reports
+        tracers.render(i, y0, y1, claim)
+        heapq.heappush(ready, (tracers.free[i], i))
+    return tracers.measures(), tracers.reports
 
 
 def frame_pool_ahead(
@@ -400,43 +378,54 @@ def frame_pool_ahead(
     they are sent, and the answer is back half a round trip later. A chunk starts when the
     tracer is free and its answer is back; a wait for an answer counts in the chunk's seconds
     (as the tracers report them), the wait for the last, empty answer in no one's."""
-    count = speeds.size
-    free = np.full(count, latency)
-    busy = np.zeros(count)
-    reports: list[TracerReport] = []
-    for i, (y0, y1) in enumerate(heads):
-        if y1 > y0:
-            seconds = unit_cost[y0:y1].sum() / speeds[i]
-            free[i] += seconds
-            busy[i] += seconds
-            cost = unit_cost[y0:y1].astype(np.int64)
-            reports.append(TracerReport(ids[i], y0, y1, float(seconds), cost))
-    arrivals = [(free[i] + round_trip / 2, i) for i in range(count)]
+    tracers = _PoolTracers(unit_cost, speeds, ids, latency, heads)
+    arrivals = [(tracers.free[i] + round_trip / 2, i) for i in range(speeds.size)]
     heapq.heapify(arrivals)
     waiting = list(chunks)[::-1]
     while arrivals:
         arrived, i = heapq.heappop(arrivals)
         answer = arrived + round_trip / 2
         if not waiting:
-            free[i] = max(free[i], answer)
+            tracers.free[i] = max(tracers.free[i], answer)
             continue
-        y0, y1 = waiting.pop()
-        start = max(free[i], answer)
-        seconds = (start - free[i]) + unit_cost[y0:y1].sum() / speeds[i] + claim
-        free[i] += seconds
-        busy[i] += seconds
-        cost = unit_cost[y0:y1].astype(np.int64)
-        reports.append(TracerReport(ids[i], y0, y1, float(seconds), cost))
+        start = max(tracers.free[i], answer)
+        tracers.render(i, *waiting.pop(), (start - tracers.free[i]) + claim)
         heapq.heappush(arrivals, (start + round_trip / 2, i))
-    window = float(free.max() - latency)
-    end = float(free.max() + latency)
-    measures = {
-        "idle": 100 * float(np.sum(window - busy)) / (count * window) if window else 0.0,
-        "span_idle": 100 * float(np.sum(end - busy)) / (count * end) if end else 0.0,
-        "wall": end,
-        "calls": float(count),
-    }
-    return measures, reports
+    return tracers.measures(), tracers.reports
+
+
+class _PoolTracers:
+    """The tracers of one pooled frame: when each is free, its busy seconds and its reports;
+    every tracer got one call (``latency`` each way) and renders its head first."""
+
+    def __init__(self, unit_cost, speeds, ids, latency: float, heads) -> None:
+        self.unit_cost, self.speeds, self.ids, self.latency = unit_cost, speeds, ids, latency
+        self.free = np.full(speeds.size, latency)
+        self.busy = np.zeros(speeds.size)
+        self.reports: list[TracerReport] = []
+        for i, (y0, y1) in enumerate(heads):
+            if y1 > y0:
+                self.render(i, y0, y1, 0.0)
+
+    def render(self, i: int, y0: int, y1: int, extra: float) -> None:
+        """Tracer ``i`` renders units [y0, y1) and spends ``extra`` seconds beside."""
+        seconds = self.unit_cost[y0:y1].sum() / self.speeds[i] + extra
+        self.free[i] += seconds
+        self.busy[i] += seconds
+        cost = self.unit_cost[y0:y1].astype(np.int64)
+        self.reports.append(TracerReport(self.ids[i], y0, y1, float(seconds), cost))
+
+    def measures(self) -> dict[str, float]:
+        count = self.speeds.size
+        window = float(self.free.max() - self.latency)
+        end = float(self.free.max() + self.latency)
+        busy = self.busy
+        return {
+            "idle": 100 * float(np.sum(window - busy)) / (count * window) if window else 0.0,
+            "span_idle": 100 * float(np.sum(end - busy)) / (count * end) if end else 0.0,
+            "wall": end,
+            "calls": float(count),
+        }
 
 
 def summarise(idle: np.ndarray) -> dict[str, float]:

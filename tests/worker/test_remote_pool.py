@@ -7,7 +7,6 @@ import threading
 import numpy as np
 import pytest
 
-from cluster.connect import connect, disconnect
 from tests.worker.test_replica import studio
 from tracer.commit_codec import encode_state
 from tracer.compile import compile_scene
@@ -30,14 +29,6 @@ def test_tables_hand_chunks_out_in_order_and_record_owners():
     assert tables.claim(2, 0) == WAIT  # above the newest table: its open is on its way
     with pytest.raises(ValueError, match="empty"):
         tables.open(3, [(3, 3)])
-
-
-@pytest.fixture(scope="module")
-def ray_session():
-    connection = connect(num_cpus=2)
-    yield connection
-    if connection.started:
-        disconnect()
 
 
 def test_racing_claims_get_every_chunk_exactly_once(ray_session):

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import ray
 
-from cluster.connect import connect, disconnect
 from cluster.scene_graph import SceneGraph
 from tests.worker.test_replica import studio
 from tracer.commit_codec import encode_commit, encode_state
@@ -204,15 +203,6 @@ def test_query_reaches_the_version_it_asks_for():
 
 
 # --- as a Ray actor -------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def ray_session():
-    """One embedded Ray for the module (started only if this process has none)."""
-    connection = connect(num_cpus=2)
-    yield connection
-    if connection.started:
-        disconnect()
 
 
 def test_actor_renders_from_a_snapshot_in_the_object_store(ray_session):
