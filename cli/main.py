@@ -343,8 +343,10 @@ def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) ->
     parser.add_argument(
         "--balancer",
         metavar="NAME",
-        help=f"how lines are split among tracers: {', '.join(sorted(BALANCERS))} "
-        f"(default: {DEFAULT_BALANCER}; for serve, TILERENDER_BALANCER if set)",
+        help=f"how each frame's lines (or spans of them) are split among tracers: "
+        f"{', '.join(sorted(BALANCERS))} (default: {DEFAULT_BALANCER}, which also balances "
+        "within the frame when the tracers share this machine; cost-aware-tail does across "
+        "machines too; for serve, TILERENDER_BALANCER if set)",
     )
     parser.add_argument(
         "--ray-address",
