@@ -794,7 +794,9 @@ class CostAwareTail(CostAware):
             if head[1] > head[0] and known and tracer in self._work:  # a real prediction
                 predicted = (prefix[head[1]] - prefix[head[0]]) / speed
                 key = (tracer, height, spans, *head)
-                self._heads.setdefault(key, deque()).append(predicted)
+                queued = self._heads.pop(key, deque())  # re-inserted: the newest is kept
+                queued.append(predicted)
+                self._heads[key] = queued
             if rest[1] > rest[0]:
                 per_line = (prefix[rest[1]] - prefix[rest[0]]) / (rest[1] - rest[0])
                 tail.append((-per_line, rest[0], rest[1]))

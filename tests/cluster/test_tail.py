@@ -312,3 +312,19 @@ def test_pooled_chunks_are_sized_for_the_slowest_tracer():
     assert chunks[0] == (0, 100)  # 1000 x 1/5 / 2, not the mean tracer's 1000 x 1/2 / 2
     assert [b - a for a, b in chunks] == sorted((b - a for a, b in chunks), reverse=True)
     assert chunks[-1][1] == 1000 and all(a == b for (_, a), (b, _) in itertools.pairwise(chunks))
+
+
+def test_a_head_planned_every_frame_outlives_stale_predictions():
+    """Predictions are dropped oldest-used first: a head that recurs every frame (the same
+    range, pipelined) is kept while heads of a layout no longer used are dropped."""
+    cost = sky_and_ground(300)
+    balancer = CostAwareTail(fraction=0.8)
+    dynamic_frame(balancer, cost, ["a", "b"], [1e6, 1e6])
+    balancer.plan(300, ["a", "b"])  # heads pending, never observed
+    for _ in range(CostAwareTail.HEADS_KEPT * 2):  # other frame sizes come and go
+        balancer.plan(150 + len(balancer._heads), ["a", "b"])
+        balancer.plan(300, ["a", "b"])
+    assert len(balancer._heads) <= CostAwareTail.HEADS_KEPT * 2
+    live = [key for key in balancer._heads if key[1] == 300]
+    rounds = 1 + CostAwareTail.HEADS_KEPT * 2  # every prediction of it is still queued
+    assert len(live) == 2 and all(len(balancer._heads[key]) == rounds for key in live)
