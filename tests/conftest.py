@@ -24,3 +24,15 @@ def cornell():
 def tiny_scene_file(tmp_path):
     """A small valid JSON scene (built-in shapes only) in its own directory."""
     return write_json(tmp_path / "scene.json", tiny_scene())
+
+
+@pytest.fixture(scope="module")
+def ray_session():
+    """One embedded Ray (2 CPUs) for the module, started only if this process has none (the
+    API tests share one for the whole run: tests/api/conftest.py)."""
+    from cluster.connect import connect, disconnect
+
+    connection = connect(num_cpus=2)
+    yield connection
+    if connection.started:
+        disconnect()

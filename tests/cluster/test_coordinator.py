@@ -112,15 +112,6 @@ def assert_covers(frame) -> None:
         assert all(a[1] == b[0] for a, b in itertools.pairwise(edges))
 
 
-@pytest.fixture(scope="module")
-def ray_session():
-    """One embedded Ray (2 CPUs) for the module."""
-    connection = connect(num_cpus=2)
-    yield connection
-    if connection.started:
-        disconnect()
-
-
 @pytest.fixture
 def local_ray(ray_session):
     if not ray.is_initialized():  # the node-removal test replaced it
