@@ -51,7 +51,7 @@ from api.events import EventHub
 from api.scenes import SceneEntry, SceneRepository, _write_atomic
 from api.settings import Settings
 from api.store import TERMINAL, Store
-from cluster.progressive import Goal, ProgressiveFrame
+from cluster.progressive import Goal, ProgressiveFrame, SpotCheck
 from cluster.scene_graph import SceneGraph
 from tracer import scene_format as fmt
 from tracer.commit_codec import decode_state, encode_state
@@ -200,6 +200,12 @@ class JobRun:
             p = self.progressive = ProgressiveFrame(camera.width, camera.height, goal)
         part = p.next_part()
         t0 = time.monotonic()
+        if isinstance(part, SpotCheck):
+            pixels, parts = coordinator.render_spot_checks(
+                part.pixels, part.spp, spec.number, camera, render, self.graph
+            )
+            p.add_spot_checks(pixels, parts, time.monotonic() - t0)
+            return self._complete(spec, p.image, p.spp, p.error, p.elapsed) if p.done else None
         self.inflight = coordinator.submit_frame(
             spec.number, camera, fmt.override(render, spp=part.spp), part.sample_start, self.graph
         )

@@ -56,6 +56,7 @@ from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene
 from tracer.loader import load_scene
 from tracer.render import render_image
+from tracer.spot_check import render_spot_checks, spot_check_spp
 from tracer.threads import default_threads
 
 DEV_DIR = RESULTS_DIR / "estimator-dev"
@@ -191,6 +192,7 @@ def level_parts(means: np.ndarray, spp: int, parts: int) -> list[np.ndarray]:
 # --- estimators ----------------------------------------------------------------------------
 
 Estimator = Callable[[np.ndarray], float | None]
+"""An estimate from a render's parts alone."""
 
 
 def _readings(stack: np.ndarray, eps: float = ee.REL_EPSILON):
@@ -284,8 +286,11 @@ ESTIMATORS: dict[str, Estimator] = {
     "the same, corroborated at 0.25, top 2": corroborated(0.25, 2),
     "outliers above 3x corroborated, None by top 2": corroborated(0.5, 2, outlier=3.0),
     "outliers above 4x corroborated, None by top 2": corroborated(0.5, 2, outlier=4.0),
-    "tracer.error_estimate (current code)": ee.estimate_rel_mse,
+    "tracer.error_estimate without spot checks": ee.estimate_rel_mse,
 }
+WITH_CHECKS = "tracer.error_estimate with spot checks (current code)"
+"""The estimator that also takes the render's spot checks (``tracer.spot_check``)."""
+NAMES = (*ESTIMATORS, WITH_CHECKS)
 
 
 # --- evaluation ----------------------------------------------------------------------------
@@ -293,6 +298,7 @@ ESTIMATORS: dict[str, Estimator] = {
 
 def evaluate_scene(setup: Setup, means: np.ndarray, max_spp: int) -> list[dict]:
     """Per level: true relative MSE of every repeat and every estimator's estimates."""
+    checks = SpotCheckCache(setup)
     records = []
     for spp in spp_levels(max_spp):
         if spp < ee.PARTS:
@@ -300,8 +306,46 @@ def evaluate_scene(setup: Setup, means: np.ndarray, max_spp: int) -> list[dict]:
         repeats = level_parts(means, spp, ee.PARTS)
         true = [ee.rel_mse(p.mean(axis=0), setup.ref.mean) - setup.floor for p in repeats]
         estimates = {name: [f(p) for p in repeats] for name, f in ESTIMATORS.items()}
+        estimates[WITH_CHECKS] = [
+            ee.estimate_rel_mse(p, checks=checks.get(spp, r, p)) for r, p in enumerate(repeats)
+        ]
         records.append({"spp": spp, "true": true, "estimates": estimates})
+    checks.save()
     return records
+
+
+class SpotCheckCache:
+    """The spot checks of a scene's development renders (``tracer.spot_check``, on the
+    development seed's checks stream), cached in ``DEV_DIR`` per level and repeat with the
+    pixels they checked (rendered again when the pixels chosen differ)."""
+
+    def __init__(self, setup: Setup) -> None:
+        self.setup = setup
+        cam = setup.camera
+        self.path = DEV_DIR / f"{setup.name}-{cam.width}x{cam.height}-s{DEV_SEED}-checks.npz"
+        self.entries: dict[str, np.ndarray] = {}
+        if self.path.is_file():
+            with np.load(self.path) as cached:
+                self.entries = {key: cached[key] for key in cached.files}
+        self.changed = False
+
+    def get(self, spp: int, repeat: int, parts: np.ndarray) -> ee.SpotChecks:
+        pixels = ee.pixels_to_check(parts)
+        key = f"{spp}-{repeat}"
+        cached = self.entries.get(f"{key}-pixels")
+        if cached is None or not np.array_equal(cached, pixels):
+            settings = fmt.override(self.setup.ref.settings, seed=DEV_SEED)
+            self.entries[f"{key}-pixels"] = pixels
+            self.entries[f"{key}-parts"] = render_spot_checks(
+                self.setup.scene, pixels, spot_check_spp(spp), self.setup.camera, settings
+            )
+            self.changed = True
+        return ee.SpotChecks(pixels, self.entries[f"{key}-parts"])
+
+    def save(self) -> None:
+        if self.changed:
+            DEV_DIR.mkdir(parents=True, exist_ok=True)
+            np.savez(self.path, **self.entries)
 
 
 def ratio(estimate: float | None, true_mse: float) -> float | None:
@@ -312,7 +356,7 @@ def ratio(estimate: float | None, true_mse: float) -> float | None:
 
 def summarise(results: dict[str, list[dict]]) -> list[dict]:
     rows = []
-    for name in ESTIMATORS:
+    for name in NAMES:
         first, every, expected, nones = [], [], [], 0
         none_levels = []
         for scene, records in results.items():
@@ -416,7 +460,7 @@ def cmd_evaluate(args) -> dict:
 
 TARGETS = (0.3, 0.1, 0.05)
 """Relative errors of the simulated renders to a target (``target_stops``)."""
-TARGET_ESTIMATORS = ("whole-image ambiguity 1.5 (before)", "tracer.error_estimate (current code)")
+TARGET_ESTIMATORS = ("tracer.error_estimate without spot checks", WITH_CHECKS)
 
 
 def target_stops(results: dict[str, list[dict]]) -> list[dict]:
@@ -480,7 +524,7 @@ def print_stops(stops: list[dict]) -> None:
 def print_levels(results: dict[str, list[dict]]) -> None:
     """The first repeat's estimated / true relative error at every level, one column per
     estimator (numbered as listed first)."""
-    for index, name in enumerate(ESTIMATORS, 1):
+    for index, name in enumerate(NAMES, 1):
         console.print(f"{index:2d}: {name}")
     for scene, records in results.items():
         for rec in records:

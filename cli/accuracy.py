@@ -41,8 +41,10 @@ from tracer.compile import CompiledScene, compile_scene
 from tracer.effects import EffectPlan, effect_plan
 from tracer.error_estimate import (
     PARTS,
+    SpotChecks,
     estimate_rel_error,
     noise_floor,
+    pixels_to_check,
     psnr,
     rel_mse,
     rel_mse_terms,
@@ -51,6 +53,7 @@ from tracer.error_estimate import (
 )
 from tracer.loader import load_scene
 from tracer.render import render_image
+from tracer.spot_check import render_spot_checks, spot_check_spp
 from tracer.threads import default_threads
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -503,34 +506,48 @@ def calibration(
     """The online estimate against the true error: the reference's own settings (so the
     render is unbiased against it) with another seed, ``PARTS`` independent parts that double
     together, as a progressive render's waves do; at each total spp the estimate from the parts
-    (None where it says the error is not estimable yet) and the true relative error of their
-    mean (the reference's noise floor subtracted)."""
+    and their spot checks (``tracer.spot_check``; None where it says the error is not
+    estimable yet), the pixels checked, and the true relative error of their mean (the
+    reference's noise floor subtracted); with the render seconds of the parts so far and of
+    the level's spot checks (:class:`RenderClock`)."""
     settings = fmt.override(ref.settings, seed=options.seed + 1)
+    threads = options.threads or default_threads()
     sums = np.zeros((PARTS, camera.height, camera.width, 3))
     per_part = 0
+    seconds = 0.0
     records = []
     for level in spp_levels(options.max_spp):
         if level < PARTS:
             continue
         n = level // PARTS - per_part
         for k in range(PARTS):
-            rgb, _ = render_image(
-                scene,
-                camera,
-                fmt.override(settings, spp=n),
-                sample_start=PARTS * per_part + k * n,
-                threads=options.threads,
-            )
+            with RenderClock(threads) as clock:
+                rgb, _ = render_image(
+                    scene,
+                    camera,
+                    fmt.override(settings, spp=n),
+                    sample_start=PARTS * per_part + k * n,
+                    threads=threads,
+                )
+            seconds += clock.seconds
             sums[k] += rgb.astype(np.float64) * n
             on_samples(n)
         per_part += n
         parts = sums / per_part
+        pixels = pixels_to_check(parts)
+        with RenderClock(threads) as clock:
+            checked = render_spot_checks(
+                scene, pixels, spot_check_spp(level), camera, settings, threads=threads
+            )
         true_mse = rel_mse(parts.mean(axis=0), ref.mean) - floor
         records.append(
             {
                 "spp": level,
-                "estimated": estimate_rel_error(parts),
+                "estimated": estimate_rel_error(parts, checks=SpotChecks(pixels, checked)),
                 "true": math.sqrt(max(true_mse, 0.0)),
+                "checked": len(pixels),
+                "seconds": seconds,
+                "check_seconds": clock.seconds,
             }
         )
     return records

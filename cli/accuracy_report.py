@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from cli.accuracy import DEFAULT_CONFIG, TARGETS
-from tracer.error_estimate import PARTS, to_display
+from tracer.error_estimate import PARTS, SPOT_CHECK_FACTOR, SPOT_CHECKS, to_display
 
 REPORT_START = "<!-- accuracy-report:start -->"
 REPORT_END = "<!-- accuracy-report:end -->"
@@ -358,7 +358,8 @@ def calibration_section(results: dict, image_dir: str) -> list[str]:
         levels = f"{spp[0]}-{spp[-1]}" if spp else "-"
         rows.append(
             f"| {name} | {levels} | {cells} | "
-            f"{sum(map(within_band, given))}/{len(given)} | {spp_ranges(missing)} |"
+            f"{sum(map(within_band, given))}/{len(given)} | {spp_ranges(missing)} | "
+            f"{check_share_text(scene['calibration'])} |"
         )
     given = [r for r in records if r["estimated"] is not None and r["true"] > 0]
     missing = [r for r in records if r["estimated"] is None]
@@ -382,12 +383,27 @@ def calibration_section(results: dict, image_dir: str) -> list[str]:
         f"reference's own settings at every spp from {PARTS} up, {len(records)} levels in all. "
         f"Where it gave an estimate ({len(given)} levels): {sum(map(within_band, given))} of "
         f"{len(given)} within +-30%, {sum(map(within_band, low))} of {len(low)} where the true "
-        f"error is at most 10%; {spread}. {missing_text}",
+        f"error is at most 10%; {spread}. {missing_text} *Spot checks*: the pixels checked "
+        f"at each level (at most {SPOT_CHECKS}, {SPOT_CHECK_FACTOR} times the level's samples "
+        "each), and what the checks of every level up to the last cost, as a share of the "
+        "render time of the parts (what a progressive render that doubles its samples pays).",
         "",
-        "| scene | spp | est/true min | median | max | within +-30% | not estimable at spp |",
-        "|---|---|---|---|---|---|---|",
+        "| scene | spp | est/true min | median | max | within +-30% | not estimable at spp "
+        "| spot checks: pixels, time |",
+        "|---|---|---|---|---|---|---|---|",
         *rows,
     ]
+
+
+def check_share_text(records: list[dict]) -> str:
+    """Pixels spot-checked per level (range) and the checks' seconds over the parts'."""
+    if not records or "check_seconds" not in records[-1]:
+        return "-"
+    counts = sorted({r["checked"] for r in records})
+    pixels = f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+    seconds = records[-1]["seconds"]
+    share = sum(r["check_seconds"] for r in records) / seconds if seconds > 0 else 0.0
+    return f"{pixels}, {share:.1%}"
 
 
 def spp_ranges(levels: list[int]) -> str:

@@ -344,6 +344,7 @@ def progressive_metadata(progress) -> dict:
         "error_estimate": progress.error,
         "spp": progress.spp,
         "waves": len(progress.waves),
+        "spot_checks": progress.waves[-1].checked if progress.waves else 0,
         "stopped": progress.stopped,
     }
 

@@ -90,6 +90,7 @@ from cluster.scene_graph import SceneGraph
 from cluster.tail import TailPlan
 from tracer import scene_format as fmt
 from tracer.commit_codec import encode_commit, encode_state
+from tracer.error_estimate import PARTS
 from tracer.scene_model import SceneState
 from worker.line_pool import LinePool
 from worker.line_pool import supported as line_pool_supported
@@ -1322,18 +1323,87 @@ class Coordinator:
         state = graph.state
         origins, directions = np.asarray(origins, float), np.asarray(directions, float)
         slot = self._schedulable()[0]
-        have = _held(slot, graph.key)
-        for sync in (self._sync_for(have, graph, state), None):
-            commits, snapshot = sync or ([], self._snapshot_ref(graph.key, state))
-            ref = slot.handle.query.remote(
+
+        def call(commits, snapshot):
+            return slot.handle.query.remote(
                 origins, directions, state.version, t_max, graph.key, commits, snapshot
             )
-            out = ray.get(ref, timeout=timeout)
-            if not isinstance(out, OutOfSync):
+
+        out = self._synced_calls(graph, [(slot, call)], timeout)[0]
+        if isinstance(out, BaseException):
+            raise out
+        return state.version, out
+
+    def render_spot_checks(
+        self,
+        pixels: np.ndarray,
+        spp: int,
+        frame: int = 0,
+        camera: fmt.Camera | None = None,
+        settings: fmt.RenderSettings | None = None,
+        graph: SceneGraph | None = None,
+        timeout: float = 600.0,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Spot checks (``tracer.spot_check``) of ``pixels`` ((P, 2) y, x) of ``frame`` at the
+        current version of ``graph``, ``spp`` samples each, shared out over the ready tracers.
+        Returns ``(pixels, parts)``: the pixels checked and their (PARTS, P', 3) parts. A
+        tracer that fails its share drops those pixels (the estimate then reads them from the
+        render's own parts) rather than the frame."""
+        graph = graph or self.graph
+        version = graph.state.version
+        pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+        slots = self._schedulable()
+        shares = [(s, pixels[k :: len(slots)]) for k, s in enumerate(slots)]
+        shares = [(s, share) for s, share in shares if len(share)]
+
+        def checker(slot: _Slot, share: np.ndarray):
+            def call(commits, snapshot):
+                return slot.handle.spot_check.remote(
+                    frame, version, commits, camera, settings, share, spp, snapshot, graph.key
+                )
+
+            return call
+
+        outs = self._synced_calls(graph, [(s, checker(s, share)) for s, share in shares], timeout)
+        kept, parts = [], []
+        for (slot, share), out in zip(shares, outs, strict=True):
+            if isinstance(out, BaseException):
+                log.warning("spot checks on %s failed: %s", slot.id, _first_line(out))
+                continue
+            kept.append(share)
+            parts.append(out)
+        if not kept:
+            return np.zeros((0, 2), np.int64), np.zeros((PARTS, 0, 3))
+        return np.concatenate(kept), np.concatenate(parts, axis=1)
+
+    def _synced_calls(self, graph: SceneGraph, calls: list, timeout: float) -> list[Any]:
+        """Run ``(slot, call)`` pairs, all in flight at once: ``call(commits, snapshot)`` is an
+        actor call that first reaches the current version of ``graph``; a tracer that answers
+        :class:`OutOfSync` is asked once more with a snapshot. Per call, its result, or the
+        error (a ``ClusterError`` or Ray's) that ended it."""
+        state = graph.state
+        pending = []
+        for slot, call in calls:
+            have = _held(slot, graph.key)
+            commits, snapshot = self._sync_for(have, graph, state)
+            pending.append((slot, call, have, call(commits, snapshot)))
+        results = []
+        for slot, call, have, ref in pending:
+            try:
+                out = ray.get(ref, timeout=timeout)
+                if isinstance(out, OutOfSync):
+                    _hold(slot, graph.key, out.have)
+                    out = ray.get(call([], self._snapshot_ref(graph.key, state)), timeout=timeout)
+                if isinstance(out, OutOfSync):
+                    _hold(slot, graph.key, out.have)
+                    raise ClusterError(
+                        f"tracer {slot.id} cannot reach version {state.version}: {out.reason}"
+                    )
                 _hold(slot, graph.key, max(have or 0, state.version))
-                return state.version, out
-            _hold(slot, graph.key, out.have)
-        raise ClusterError(f"tracer {slot.id} cannot reach version {state.version}: {out.reason}")
+            except (ClusterError, RayError) as error:
+                out = error
+            results.append(out)
+        return results
 
 
 def _first_line(error: BaseException) -> str:

@@ -11,6 +11,10 @@ what is left of it (from the last wave's seconds per sample). The frame stops af
 wave whose estimate meets the target, when the next wave would not fit in the budget, or at
 ``max_spp``. While the error is not estimable, a target keeps the waves going.
 
+After each wave, the few pixels whose error the parts cannot tell (a light smaller than a
+pixel, seen by one part) are *spot-checked*: rendered again, independently, with
+``SPOT_CHECK_FACTOR`` times the frame's samples (``tracer.spot_check``), before the estimate.
+
 :class:`ProgressiveFrame` is the state and the rules, with no Ray in it (a caller may drive it
 one part at a time, as the service does between other work); :func:`render_progressive`
 drives it through a :class:`cluster.coordinator.Coordinator`.
@@ -24,7 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tracer import scene_format as fmt
-from tracer.error_estimate import PARTS, estimate_rel_error
+from tracer.error_estimate import PARTS, SpotChecks, estimate_rel_error, pixels_to_check
+from tracer.spot_check import spot_check_spp
 
 MAX_PART_SPP = 64
 """Most samples per pixel one part of a wave adds."""
@@ -69,6 +74,16 @@ class Part:
     """Which of the wave's ``PARTS`` parts (0 first)."""
 
 
+@dataclass(frozen=True)
+class SpotCheck:
+    """Pixels of the frame to render again on the spot checks' own sample stream
+    (``tracer.spot_check``), ``spp`` samples each, before the wave's estimate."""
+
+    pixels: np.ndarray
+    """(P, 2) int: y, x."""
+    spp: int
+
+
 @dataclass
 class WaveRecord:
     """The state after a complete wave."""
@@ -77,14 +92,18 @@ class WaveRecord:
     error: float | None
     seconds: float
     """Seconds since the frame started."""
+    checked: int = 0
+    """Pixels spot-checked for the estimate."""
 
 
 @dataclass
 class ProgressiveFrame:
     """One frame's ``PARTS`` accumulators and the rules that size waves and stop them.
 
-    Call :meth:`next_part`, render the part it names, hand the image to :meth:`add_part`;
-    repeat until :meth:`next_part` returns None. ``clock`` (seconds) is injectable for tests.
+    Call :meth:`next_part` and render what it names: a :class:`Part` (hand the image to
+    :meth:`add_part`) or, after a wave, a :class:`SpotCheck` (hand the checked pixels and
+    their parts to :meth:`add_spot_checks`); repeat until it returns None. ``clock``
+    (seconds) is injectable for tests.
     """
 
     width: int
@@ -102,7 +121,7 @@ class ProgressiveFrame:
     """Why the frame stopped: ``target_error``, ``time_budget`` or ``max_spp``."""
     waves: list[WaveRecord] = field(default_factory=list)
     started: float | None = None
-    _pending: Part | None = None
+    _pending: Part | SpotCheck | None = None
     _wave: list[int] = field(default_factory=list)
     """Samples per pixel of the current wave's parts rendered so far."""
     _wave_seconds: float = 0.0
@@ -131,8 +150,8 @@ class ProgressiveFrame:
         """The mean of every sample taken, float32 (H, W, 3)."""
         return (self.sums.sum(axis=0) / max(1, self.spp)).astype(np.float32)
 
-    def next_part(self) -> Part | None:
-        """The part to render next, or None when the frame is done."""
+    def next_part(self) -> Part | SpotCheck | None:
+        """The part or spot check to render next, or None when the frame is done."""
         if self.stopped is not None:
             return None
         if self._pending is not None:
@@ -147,7 +166,7 @@ class ProgressiveFrame:
         """Add the rendered part (float (H, W, 3), the mean of its samples) that
         :meth:`next_part` named; ``seconds`` is what rendering it took."""
         part = self._pending
-        if part is None:
+        if not isinstance(part, Part):
             raise RuntimeError("add_part without a pending part (call next_part first)")
         if rgb.shape != self.sums.shape[1:]:
             raise ValueError(f"expected an image of shape {self.sums.shape[1:]}, got {rgb.shape}")
@@ -160,8 +179,28 @@ class ProgressiveFrame:
         self.part_spp += part.spp
         self._wave = []
         self._last_wave = (PARTS * part.spp, self._wave_seconds)
-        self.error = estimate_rel_error(self.sums / self.part_spp)
-        self.waves.append(WaveRecord(self.spp, self.error, self.elapsed))
+        pixels = pixels_to_check(self.sums / self.part_spp)
+        if len(pixels):
+            self._pending = SpotCheck(pixels, spot_check_spp(self.spp))
+        else:
+            self._end_wave(None)
+
+    def add_spot_checks(self, pixels: np.ndarray, parts: np.ndarray, seconds: float) -> None:
+        """Add the spot checks that :meth:`next_part` named: the pixels checked ((P', 2), a
+        subset of those named, e.g. none when the checks failed) and their (PARTS, P', 3)
+        parts; ``seconds`` is what rendering them took."""
+        if not isinstance(self._pending, SpotCheck):
+            raise RuntimeError("add_spot_checks without a pending spot check")
+        self._pending = None
+        wave_spp, wave_seconds = self._last_wave
+        self._last_wave = (wave_spp, wave_seconds + seconds)
+        pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+        self._end_wave(SpotChecks(pixels, parts) if len(pixels) else None)
+
+    def _end_wave(self, checks: SpotChecks | None) -> None:
+        self.error = estimate_rel_error(self.sums / self.part_spp, checks=checks)
+        checked = 0 if checks is None else len(checks.pixels)
+        self.waves.append(WaveRecord(self.spp, self.error, self.elapsed, checked))
         self._check_stop()
 
     def _check_stop(self) -> None:
@@ -216,10 +255,16 @@ def render_progressive(
     camera = camera or state.camera
     settings = settings or state.render
     progress = ProgressiveFrame(camera.width, camera.height, goal)
-    while (part := progress.next_part()) is not None:
+    while (step := progress.next_part()) is not None:
         start = time.monotonic()
+        if isinstance(step, SpotCheck):
+            pixels, parts = coordinator.render_spot_checks(
+                step.pixels, step.spp, frame, camera, settings
+            )
+            progress.add_spot_checks(pixels, parts, time.monotonic() - start)
+            continue
         done = coordinator.render_frame(
-            frame, camera, fmt.override(settings, spp=part.spp), part.sample_start
+            frame, camera, fmt.override(settings, spp=step.spp), step.sample_start
         )
         progress.add_part(done.rgb, time.monotonic() - start)
         if on_part is not None:

@@ -12,10 +12,14 @@ Images are float (H, W, 3) linear radiance. Definitions (``docs/accuracy.md``):
 The online estimate (:func:`estimate_rel_mse`) needs no reference: a render split into
 ``PARTS`` independent parts of equal sample counts (disjoint sample ranges) estimates the
 variance of their mean from their spread, the expected squared error of an unbiased render;
-the function's docstring explains its denominator and when it returns None.
+the function's docstring explains its denominator and when it returns None. Where the parts
+cannot tell a pixel's value (a light smaller than a pixel, seen by one or two parts), a few
+*spot checks* (:class:`SpotChecks`: those pixels rendered again with many more samples,
+independently, by ``tracer.spot_check``) measure its error directly.
 """
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -94,11 +98,83 @@ smaller than a pixel, seen by one part, shows in one or two (see :func:`estimate
 AMBIGUITY = 1.5
 """Largest ratio of relative errors between the two readings of those pixels at which the
 estimate is still given."""
+SPOT_CHECKS = 16
+"""Most pixels of a render that are spot-checked (:func:`pixels_to_check`)."""
+SPOT_CHECK_FACTOR = 64
+"""Samples per pixel of a spot check, as a multiple of the render's."""
+SPOT_CHECK_SHARE = 1 / 8
+"""Largest share of a render's samples its spot checks may add: fewer pixels are checked in
+small images (none below ``SPOT_CHECK_FACTOR / SPOT_CHECK_SHARE`` = 512 pixels)."""
 
 
-def estimate_rel_mse(parts: Images, eps: float = REL_EPSILON) -> float | None:
+@dataclass(frozen=True)
+class SpotChecks:
+    """A few pixels of a render rendered again, independently of it, with many more samples.
+
+    ``pixels`` is (P, 2) int (y, x); ``parts`` is (K, P, 3) float, K >= 2 means of equal
+    sample counts over disjoint sample ranges (their spread gives the checks' own variance).
+    """
+
+    pixels: np.ndarray
+    parts: np.ndarray
+
+    def __post_init__(self) -> None:
+        pixels, parts = np.asarray(self.pixels), np.asarray(self.parts)
+        if pixels.ndim != 2 or pixels.shape[1] != 2:
+            raise ValueError(f"spot-check pixels must be (P, 2), got shape {pixels.shape}")
+        if parts.ndim != 3 or parts.shape[0] < 2 or parts.shape[1:] != (len(pixels), 3):
+            raise ValueError(
+                f"spot-check parts must be (K >= 2, {len(pixels)}, 3), got shape {parts.shape}"
+            )
+
+
+def spot_check_count(pixels: int) -> int:
+    """Pixels to spot-check in an image of ``pixels`` pixels (see ``SPOT_CHECK_SHARE``)."""
+    return int(min(SPOT_CHECKS, pixels * SPOT_CHECK_SHARE // SPOT_CHECK_FACTOR))
+
+
+def pixels_to_check(
+    parts: Images, count: int | None = None, eps: float = REL_EPSILON
+) -> np.ndarray:
+    """(P, 2) int (y, x), P <= ``count``: the pixels whose error the parts tell least, most
+    uncertain first (default count: :func:`spot_check_count`).
+
+    A pixel's error term can lie anywhere between its reading as a light (the parts' mean is
+    its value) and its reading with the lowest value the parts make plausible (the second
+    smallest part, or the median's 3x3 floor if lower: one or two parts that saw a rare
+    bright path). The pixels with the widest gap between the two, and only those with a gap,
+    are the ones to check.
+    """
+    stack = _parts(parts)
+    _, variance, floor, _, as_light = _readings(stack, eps)
+    low = np.minimum(np.sort(stack, axis=0)[1], floor)
+    gap = (variance / (low * low + eps) - as_light).sum(axis=2)
+    if count is None:
+        count = spot_check_count(gap.size)
+    order = np.argsort(gap, axis=None, kind="stable")[::-1][: max(0, count)]
+    order = order[gap.flat[order] > 0.0]
+    return np.stack(np.unravel_index(order, gap.shape), axis=1).astype(np.int64)
+
+
+def _readings(stack: np.ndarray, eps: float):
+    """Per pixel and channel: the parts' mean, the variance of that mean, the denominator
+    floor, the chosen error term, and the term read as a light (see :func:`estimate_rel_mse`)."""
+    mean = stack.mean(axis=0)
+    variance = stack.var(axis=0, ddof=1) / stack.shape[0]
+    centre = np.median(stack, axis=0)
+    floor = np.maximum(centre, np.minimum(mean, 0.5 * max_filter3(centre)))
+    outlier = mean > OUTLIER * floor
+    light = outlier & (max_neighbour(mean) >= CORROBORATION * mean)
+    terms = variance / (np.where(light, mean, floor) ** 2 + eps)
+    as_light = variance / (np.maximum(floor, mean) ** 2 + eps)
+    return mean, variance, floor, terms, as_light
+
+
+def estimate_rel_mse(
+    parts: Images, eps: float = REL_EPSILON, checks: SpotChecks | None = None
+) -> float | None:
     """The relative MSE of the mean of ``parts`` estimated without a reference, or None when
-    the parts cannot tell it yet.
+    the parts (and spot checks) cannot tell it yet.
 
     ``parts`` is a sequence (or a (K, H, W, 3) array) of K >= 3 independent images, each the
     mean of equal numbers of samples over disjoint sample ranges. Per pixel and channel:
@@ -119,30 +195,42 @@ def estimate_rel_mse(parts: Images, eps: float = REL_EPSILON) -> float | None:
     read as a light (``m``), the others as fireflies. A small light may still show in one
     pixel alone; when reading the ``UNRESOLVED_PIXELS`` pixels whose reading matters most
     the other way would change the relative error by more than ``AMBIGUITY``, the parts
-    cannot tell it yet and the estimate is None. It estimates the error of this render
-    (which fireflies it caught), not the mean error of renders like it; docs/accuracy.md
-    measures both.
+    cannot tell it yet and the estimate is None.
+
+    ``checks`` (:func:`pixels_to_check`, rendered by ``tracer.spot_check``) replace the
+    readings of their pixels by a measurement: with ``r`` the checks' mean and ``v`` its
+    variance, ``(m - r)^2 - v`` is an unbiased estimate of ``(m - mu)^2``, this render's
+    squared error there, and ``r^2 + 3 v`` in the denominator removes the first-order bias of
+    ``1 / r^2`` (delta method), large where a pixel's value comes from rare samples. Checked
+    pixels no longer count as ambiguous.
+
+    It estimates the error of this render (which fireflies it caught), not the mean error of
+    renders like it; docs/accuracy.md measures both.
     """
     stack = _parts(parts)
-    mean = stack.mean(axis=0)
-    variance = stack.var(axis=0, ddof=1) / stack.shape[0]
-    centre = np.median(stack, axis=0)
-    floor = np.maximum(centre, np.minimum(mean, 0.5 * max_filter3(centre)))
-    outlier = mean > OUTLIER * floor
-    light = outlier & (max_neighbour(mean) >= CORROBORATION * mean)
-    terms = variance / (np.where(light, mean, floor) ** 2 + eps)
-    as_lights = variance / (np.maximum(floor, mean) ** 2 + eps)
-    excess = np.sort((terms - as_lights).sum(axis=2), axis=None)[-UNRESOLVED_PIXELS:].sum()
-    total = float(terms.sum())
-    if total - excess < total / AMBIGUITY**2:
+    mean, _, _, terms, as_light = _readings(stack, eps)
+    excess = (terms - as_light).sum(axis=2)
+    if checks is not None and len(checks.pixels):
+        ys, xs = np.asarray(checks.pixels).T
+        samples = np.asarray(checks.parts, dtype=np.float64)
+        value = samples.mean(axis=0)
+        variance = samples.var(axis=0, ddof=1) / samples.shape[0]
+        squared = value * value + 3.0 * variance  # E[1 / r^2] ~ (1 + 3 v / mu^2) / mu^2
+        terms[ys, xs] = ((mean[ys, xs] - value) ** 2 - variance) / (squared + eps)
+        excess[ys, xs] = 0.0
+    total = max(0.0, float(terms.sum()))
+    unresolved = np.sort(excess, axis=None)[-UNRESOLVED_PIXELS:].sum()
+    if total - unresolved < total / AMBIGUITY**2:
         return None
     return total / terms.size
 
 
-def estimate_rel_error(parts: Images, eps: float = REL_EPSILON) -> float | None:
+def estimate_rel_error(
+    parts: Images, eps: float = REL_EPSILON, checks: SpotChecks | None = None
+) -> float | None:
     """The relative RMS error of the mean of ``parts``: the square root of
     :func:`estimate_rel_mse` (None when that is None)."""
-    mse = estimate_rel_mse(parts, eps)
+    mse = estimate_rel_mse(parts, eps, checks)
     return None if mse is None else float(np.sqrt(mse))
 
 

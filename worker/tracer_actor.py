@@ -35,6 +35,7 @@ from tracer.effects import effect_plan
 from tracer.errors import SceneError
 from tracer.query import SceneHits
 from tracer.render import render_lines, render_pixels
+from tracer.spot_check import render_spot_checks
 from tracer.threads import default_threads
 from worker.line_pool import LinePool
 from worker.remote_pool import PoolLost, RemotePool
@@ -290,6 +291,29 @@ class Tracer:
             except PoolLost:
                 pass
         return chunks
+
+    def spot_check(
+        self,
+        frame: int,
+        version: int,
+        commits: list[bytes],
+        camera: fmt.Camera | None,
+        settings: fmt.RenderSettings | None,
+        pixels: np.ndarray,
+        spp: int,
+        snapshot: bytes | None = None,
+        scene: str = DEFAULT_SCENE,
+    ) -> "np.ndarray | OutOfSync":
+        """Spot checks of ``pixels`` ((P, 2) y, x) of ``frame`` at ``version`` of ``scene``,
+        ``spp`` samples each (:func:`tracer.spot_check.render_spot_checks`: (PARTS, P, 3)),
+        reaching the version first like a render call."""
+        problem = self._reach(scene, version, commits, snapshot)
+        if problem is not None:
+            return self._out_of_sync(scene, frame, version, problem)
+        compiled = self.replicas[scene].at(version)
+        camera = camera or compiled.camera
+        settings = settings or compiled.render
+        return render_spot_checks(compiled, pixels, spp, camera, settings, frame, self.threads)
 
     def warm_up(self) -> dict:
         """Render one pixel of the held scene at 1 spp, so the render kernel is loaded (from

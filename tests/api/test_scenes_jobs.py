@@ -202,6 +202,10 @@ def test_progressive_jobs(client):
     r = client.post("/v1/jobs", json={"scene_id": scene["id"], "time_budget": 0.5, "max_spp": 4096})
     job = wait_job(client, r.json()["id"])
     assert job["status"] == "done" and job["frames"][0]["spp"] >= 2
+    body = {"scene_id": scene["id"], "target_error": 0.2, "width": 32, "height": 24}
+    job = wait_job(client, client.post("/v1/jobs", json=body).json()["id"])  # spot-checked
+    assert job["status"] == "done", job
+    assert job["frames"][0]["error_estimate"] <= 0.2
 
 
 def test_events_progress_and_cancel(client):

@@ -41,12 +41,24 @@ def test_target_error(capsys, tmp_path, tiny_scene_file):
     progressive = png_metadata(png)["progressive"]
     assert progressive["stopped"] == "target_error"
     assert progressive["error_estimate"] <= 0.1
+    assert progressive["spot_checks"] == 0  # 192 pixels: too few to spot-check
     spp = progressive["spp"]
     assert png_metadata(png)["render"]["spp"] == spp
     scene = compile_scene(load_scene(tiny_scene_file))
     camera = override(scene.camera, width=16, height=12)
     expected = render_image(scene, camera, override(scene.render, spp=spp))[0]
     np.testing.assert_allclose(read_image(npy), expected, rtol=1e-5, atol=1e-6)
+
+
+def test_larger_images_are_spot_checked(capsys, tmp_path, tiny_scene_file):
+    """From 512 pixels on, each wave spot-checks pixels (here 32x24: one) before its
+    estimate; the metadata says how many the last wave checked."""
+    out = tmp_path / "out.png"
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--width", 32,
+                       "--height", 24, "--target-error", 0.1, "-q")  # fmt: skip
+    assert code == 0, err
+    progressive = png_metadata(out)["progressive"]
+    assert progressive["stopped"] == "target_error" and progressive["spot_checks"] == 1
 
 
 def test_time_budget_and_max_spp(capsys, tmp_path, tiny_scene_file):

@@ -10,13 +10,21 @@ import pytest
 
 from cluster.connect import connect, disconnect
 from cluster.coordinator import Coordinator
-from cluster.progressive import MAX_PART_SPP, Goal, ProgressiveFrame, render_progressive
+from cluster.progressive import (
+    MAX_PART_SPP,
+    Goal,
+    Part,
+    ProgressiveFrame,
+    SpotCheck,
+    render_progressive,
+)
 from cluster.scene_graph import SceneGraph
 from tests.worker.test_replica import studio
 from tracer.compile import compile_scene
-from tracer.error_estimate import PARTS, rel_mse
+from tracer.error_estimate import PARTS, SPOT_CHECK_FACTOR, rel_mse
 from tracer.render import render_image
 from tracer.scene_format import override
+from tracer.spot_check import render_spot_checks
 
 W, H = 16, 12
 MU = 0.5
@@ -156,10 +164,62 @@ def test_add_part_checks_its_input():
         progress.add_part(np.zeros((H + 1, W, 3)), 0.1)
 
 
+def lit_pixel_wave(progress: ProgressiveFrame, width: int, height: int) -> None:
+    """Render a wave in which part 2 alone saw a light smaller than a pixel at (5, 7) (one
+    sample of 1000), on a slightly noisy image."""
+    rng = np.random.default_rng(progress.spp)
+    for _ in range(PARTS):
+        part = progress.next_part()
+        assert isinstance(part, Part)
+        image = MU + 0.01 * rng.normal(size=(height, width, 3))
+        image[5, 7] = 0.0
+        if part.index == 2:
+            image[5, 7] = 1000.0 / part.spp
+        progress.add_part(image, 0.1)
+
+
+def test_a_wave_ends_with_spot_checks():
+    """A frame of 32x24 pixels may spot-check one pixel. After the wave's fourth part it names
+    the pixel that one part alone saw lit, with 64 times the frame's samples, and waits for
+    it: no part until then. Without its check the error is not estimable; a check that finds
+    the pixel's value gives the estimate, and the wave records the pixel checked."""
+    width, height = 32, 24
+    progress = ProgressiveFrame(width, height, Goal(max_spp=64))
+    lit_pixel_wave(progress, width, height)
+    check = progress.next_part()
+    assert isinstance(check, SpotCheck)
+    assert check.pixels.tolist() == [[5, 7]]
+    assert check.spp == SPOT_CHECK_FACTOR * progress.spp
+    assert progress.next_part() is check and not progress.waves
+    with pytest.raises(RuntimeError, match="pending part"):
+        progress.add_part(np.zeros((height, width, 3)), 0.1)
+    value = np.full((PARTS, 1, 3), 1000.0 / progress.spp)  # the light, as the mean saw it
+    progress.add_spot_checks(
+        check.pixels, value * (1.0 + 0.01 * np.arange(PARTS))[:, None, None], 1.0
+    )
+    wave = progress.waves[-1]
+    assert wave.checked == 1 and wave.error is not None
+    assert progress.error == pytest.approx(wave.error)
+    assert isinstance(progress.next_part(), Part)
+
+
+def test_a_failed_spot_check_leaves_the_parts_estimate():
+    """When the checks come back without pixels (their tracer failed), the estimate is the
+    parts' own: here, not estimable."""
+    width, height = 32, 24
+    progress = ProgressiveFrame(width, height, Goal(max_spp=64))
+    lit_pixel_wave(progress, width, height)
+    assert isinstance(progress.next_part(), SpotCheck)
+    progress.add_spot_checks(np.zeros((0, 2), int), np.zeros((PARTS, 0, 3)), 0.5)
+    assert progress.waves[-1].checked == 0 and progress.error is None
+    with pytest.raises(RuntimeError, match="spot check"):
+        progress.add_spot_checks(np.zeros((0, 2), int), np.zeros((PARTS, 0, 3)), 0.5)
+
+
 @pytest.fixture(scope="module")
 def coordinator():
     connection = connect(num_cpus=2)
-    coordinator = Coordinator(SceneGraph(studio()), tracers=1)
+    coordinator = Coordinator(SceneGraph(studio()), tracers=2)
     yield coordinator
     coordinator.close()
     if connection.started:
@@ -180,3 +240,14 @@ def test_through_the_coordinator(coordinator):
     goal = Goal(target_error=progress.error * 1.5, max_spp=32)
     reached = render_progressive(coordinator, goal)
     assert reached.stopped == "target_error" and reached.spp <= 32
+
+
+def test_spot_checks_through_the_coordinator(coordinator):
+    """The coordinator shares the pixels out over its tracers; every pixel comes back with the
+    parts the library renders for it."""
+    state = coordinator.graph.state
+    pixels = np.array([[1, 2], [10, 20], [5, 5], [23, 31], [0, 0]])
+    got_pixels, got = coordinator.render_spot_checks(pixels, 16)
+    assert sorted(map(tuple, got_pixels.tolist())) == sorted(map(tuple, pixels.tolist()))
+    expected = render_spot_checks(compile_scene(state), got_pixels, 16)
+    np.testing.assert_array_equal(got, expected)
