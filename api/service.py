@@ -202,7 +202,7 @@ class JobRun:
         t0 = time.monotonic()
         if isinstance(part, SpotCheck):
             pixels, parts = coordinator.render_spot_checks(
-                part.pixels, part.spp, spec.number, camera, render, self.graph
+                part, spec.number, camera, render, self.graph
             )
             p.add_spot_checks(pixels, parts, time.monotonic() - t0)
             return self._complete(spec, p.image, p.spp, p.error, p.elapsed) if p.done else None
@@ -252,9 +252,10 @@ class JobRun:
         elif self.mode == "time_budget":
             frame_elapsed = time.monotonic() - self.current_started if self.current else 0.0
             eta = max(0.0, (total - self.done) * self.frame_budget - frame_elapsed)
-        elif p is not None and p.error and p.spp and self.done == self.done_at_start:
+        elif p is not None and p.waves and p.waves[-1].error and self.done == self.done_at_start:
             target = float(self.request["target_error"])
-            needed = min(self.max_spp, p.spp * (p.error / target) ** 2)
+            wave = p.waves[-1]  # the estimate and the samples it was made at
+            needed = min(self.max_spp, wave.spp * (wave.error / target) ** 2)
             eta = p.elapsed / p.spp * max(0.0, needed - p.spp) * (total - self.done)
         elif self.done > self.done_at_start:
             eta = elapsed / (self.done - self.done_at_start) * (total - self.done)

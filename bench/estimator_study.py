@@ -11,8 +11,10 @@ samples each (or the means of several whole batches past ``--batch-spp``), and t
 defaults 8 up to 256 spp, 4 at 512 and 2 at 1024). Cached in ``bench/results/estimator-dev/``.
 
 ``evaluate``: at every level from 4 to 1024 spp and every repeat, each estimator of
-:data:`ESTIMATORS` against the true relative error of the parts' mean (the reference's noise
-floor subtracted, as the study does). A level counts as *within* when the estimate of the first
+:data:`ESTIMATORS` (from the parts alone) and the current one with the repeat's spot checks
+(``tracer.spot_check``, rendered on the development seed's checks stream and cached beside the
+batches) against the true relative error of the parts' mean (the reference's noise floor
+subtracted, as the study does). A level counts as *within* when the estimate of the first
 repeat is within +-30% of its true error (one render, as the study's calibration measures it);
 the repeats give the same over every render, and the *expected* error (the root of the mean
 true relative MSE over the repeats).
@@ -56,7 +58,7 @@ from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene
 from tracer.loader import load_scene
 from tracer.render import render_image
-from tracer.spot_check import render_spot_checks, spot_check_spp
+from tracer.spot_check import SpotCheckLedger, render_spot_checks
 from tracer.threads import default_threads
 
 DEV_DIR = RESULTS_DIR / "estimator-dev"
@@ -315,9 +317,11 @@ def evaluate_scene(setup: Setup, means: np.ndarray, max_spp: int) -> list[dict]:
 
 
 class SpotCheckCache:
-    """The spot checks of a scene's development renders (``tracer.spot_check``, on the
-    development seed's checks stream), cached in ``DEV_DIR`` per level and repeat with the
-    pixels they checked (rendered again when the pixels chosen differ)."""
+    """The spot checks of a scene's development renders (``tracer.spot_check``, planned for
+    each render on its own as the first wave to reach its spp would, on a checks stream of
+    its own per repeat: the development seed plus the repeat), cached in ``DEV_DIR`` per level
+    and repeat with the pixels they checked (rendered again when the pixels chosen differ).
+    Delete the file after a change to the tracer's rendering."""
 
     def __init__(self, setup: Setup) -> None:
         self.setup = setup
@@ -329,18 +333,27 @@ class SpotCheckCache:
                 self.entries = {key: cached[key] for key in cached.files}
         self.changed = False
 
-    def get(self, spp: int, repeat: int, parts: np.ndarray) -> ee.SpotChecks:
-        pixels = ee.pixels_to_check(parts)
+    def get(self, spp: int, repeat: int, parts: np.ndarray) -> ee.SpotChecks | None:
+        ledger = SpotCheckLedger(self.setup.camera.width * self.setup.camera.height)
+        request = ledger.plan(parts, spp)
+        if request is None:
+            return None
         key = f"{spp}-{repeat}"
         cached = self.entries.get(f"{key}-pixels")
-        if cached is None or not np.array_equal(cached, pixels):
-            settings = fmt.override(self.setup.ref.settings, seed=DEV_SEED)
-            self.entries[f"{key}-pixels"] = pixels
+        if cached is None or not np.array_equal(cached, request.pixels):
+            settings = fmt.override(self.setup.ref.settings, seed=DEV_SEED + repeat)
+            self.entries[f"{key}-pixels"] = request.pixels
             self.entries[f"{key}-parts"] = render_spot_checks(
-                self.setup.scene, pixels, spot_check_spp(spp), self.setup.camera, settings
+                self.setup.scene,
+                request.pixels,
+                request.part_spp,
+                request.part_start,
+                self.setup.camera,
+                settings,
             )
             self.changed = True
-        return ee.SpotChecks(pixels, self.entries[f"{key}-parts"])
+        ledger.add(request, request.pixels, self.entries[f"{key}-parts"])
+        return ledger.checks()
 
     def save(self) -> None:
         if self.changed:

@@ -41,10 +41,8 @@ from tracer.compile import CompiledScene, compile_scene
 from tracer.effects import EffectPlan, effect_plan
 from tracer.error_estimate import (
     PARTS,
-    SpotChecks,
     estimate_rel_error,
     noise_floor,
-    pixels_to_check,
     psnr,
     rel_mse,
     rel_mse_terms,
@@ -53,7 +51,7 @@ from tracer.error_estimate import (
 )
 from tracer.loader import load_scene
 from tracer.render import render_image
-from tracer.spot_check import render_spot_checks, spot_check_spp
+from tracer.spot_check import SpotCheckLedger, render_spot_checks
 from tracer.threads import default_threads
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -506,8 +504,9 @@ def calibration(
     """The online estimate against the true error: the reference's own settings (so the
     render is unbiased against it) with another seed, ``PARTS`` independent parts that double
     together, as a progressive render's waves do; at each total spp the estimate from the parts
-    and their spot checks (``tracer.spot_check``; None where it says the error is not
-    estimable yet), the pixels checked, and the true relative error of their mean (the
+    and their spot checks, topped up level by level as a progressive render's are
+    (``tracer.spot_check``; None where it says the error is not estimable yet), the pixels
+    checked, and the true relative error of their mean (the
     reference's noise floor subtracted); with the render seconds of the parts so far and of
     the level's spot checks (:class:`RenderClock`)."""
     settings = fmt.override(ref.settings, seed=options.seed + 1)
@@ -515,6 +514,7 @@ def calibration(
     sums = np.zeros((PARTS, camera.height, camera.width, 3))
     per_part = 0
     seconds = 0.0
+    ledger = SpotCheckLedger(camera.width * camera.height)
     records = []
     for level in spp_levels(options.max_spp):
         if level < PARTS:
@@ -534,20 +534,31 @@ def calibration(
             on_samples(n)
         per_part += n
         parts = sums / per_part
-        pixels = pixels_to_check(parts)
-        with RenderClock(threads) as clock:
-            checked = render_spot_checks(
-                scene, pixels, spot_check_spp(level), camera, settings, threads=threads
-            )
+        request = ledger.plan(parts, level)
+        check_seconds = 0.0
+        if request is not None:
+            with RenderClock(threads) as clock:
+                checked = render_spot_checks(
+                    scene,
+                    request.pixels,
+                    request.part_spp,
+                    request.part_start,
+                    camera,
+                    settings,
+                    threads=threads,
+                )
+            ledger.add(request, request.pixels, checked)
+            check_seconds = clock.seconds
+        checks = ledger.checks()
         true_mse = rel_mse(parts.mean(axis=0), ref.mean) - floor
         records.append(
             {
                 "spp": level,
-                "estimated": estimate_rel_error(parts, checks=SpotChecks(pixels, checked)),
+                "estimated": estimate_rel_error(parts, checks=checks),
                 "true": math.sqrt(max(true_mse, 0.0)),
-                "checked": len(pixels),
+                "checked": 0 if checks is None else len(checks.pixels),
                 "seconds": seconds,
-                "check_seconds": clock.seconds,
+                "check_seconds": check_seconds,
             }
         )
     return records

@@ -367,10 +367,13 @@ def render_progressive_frame(coordinator, goal, frame: int, label: str, quiet: b
 
         def on_part(progress, done) -> None:
             last[:] = [done]
-            if progress.error is not None:
-                bar.update(task, status=f"{progress.spp} spp, est. error {progress.error:.2%}")
-            elif progress.waves:
-                bar.update(task, status=f"{progress.spp} spp, error not estimable yet")
+            if not progress.waves:
+                return
+            wave = progress.waves[-1]  # the estimate and the samples it was made at
+            if wave.error is not None:
+                bar.update(task, status=f"{wave.spp} spp, est. error {wave.error:.2%}")
+            else:
+                bar.update(task, status=f"{wave.spp} spp, error not estimable yet")
 
         progress = render_progressive(coordinator, goal, frame, on_part=on_part)
     return progress, last[0]

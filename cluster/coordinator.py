@@ -80,7 +80,13 @@ from typing import Any
 
 import numpy as np
 import ray
-from ray.exceptions import ActorDiedError, RayActorError, RayError, RayTaskError
+from ray.exceptions import (
+    ActorDiedError,
+    GetTimeoutError,
+    RayActorError,
+    RayError,
+    RayTaskError,
+)
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from cluster.assembler import Assembler, runs
@@ -92,6 +98,7 @@ from tracer import scene_format as fmt
 from tracer.commit_codec import encode_commit, encode_state
 from tracer.error_estimate import PARTS
 from tracer.scene_model import SceneState
+from tracer.spot_check import SpotCheck
 from worker.line_pool import LinePool
 from worker.line_pool import supported as line_pool_supported
 from worker.line_pool import sweep as line_pool_sweep
@@ -1329,59 +1336,69 @@ class Coordinator:
                 origins, directions, state.version, t_max, graph.key, commits, snapshot
             )
 
-        out = self._synced_calls(graph, [(slot, call)], timeout)[0]
+        out = self._synced_calls(graph, state, [(slot, call)], timeout)[0]
         if isinstance(out, BaseException):
             raise out
         return state.version, out
 
     def render_spot_checks(
         self,
-        pixels: np.ndarray,
-        spp: int,
+        request: SpotCheck,
         frame: int = 0,
         camera: fmt.Camera | None = None,
         settings: fmt.RenderSettings | None = None,
         graph: SceneGraph | None = None,
-        timeout: float = 600.0,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Spot checks (``tracer.spot_check``) of ``pixels`` ((P, 2) y, x) of ``frame`` at the
-        current version of ``graph``, ``spp`` samples each, shared out over the ready tracers.
-        Returns ``(pixels, parts)``: the pixels checked and their (PARTS, P', 3) parts. A
-        tracer that fails its share drops those pixels (the estimate then reads them from the
-        render's own parts) rather than the frame."""
+        """A progressive frame's spot checks (``tracer.spot_check``) of ``frame`` at the
+        current version of ``graph``, shared out over the ready tracers. Returns ``(pixels,
+        parts)``: the pixels checked and their (PARTS, P', 3) parts. A tracer that fails its
+        share, or has not answered after ``stall_timeout``, drops those pixels (the estimate
+        then reads them from the render's own parts) rather than the frame."""
         graph = graph or self.graph
-        version = graph.state.version
-        pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+        state = graph.state
         slots = self._schedulable()
-        shares = [(s, pixels[k :: len(slots)]) for k, s in enumerate(slots)]
-        shares = [(s, share) for s, share in shares if len(share)]
+        shares = [(s, np.arange(k, len(request.pixels), len(slots))) for k, s in enumerate(slots)]
+        shares = [(s, rows) for s, rows in shares if len(rows)]
 
-        def checker(slot: _Slot, share: np.ndarray):
+        def checker(slot: _Slot, rows: np.ndarray):
             def call(commits, snapshot):
                 return slot.handle.spot_check.remote(
-                    frame, version, commits, camera, settings, share, spp, snapshot, graph.key
+                    frame,
+                    state.version,
+                    commits,
+                    camera,
+                    settings,
+                    request.pixels[rows],
+                    request.part_spp[rows],
+                    request.part_start[rows],
+                    snapshot,
+                    graph.key,
                 )
 
             return call
 
-        outs = self._synced_calls(graph, [(s, checker(s, share)) for s, share in shares], timeout)
+        calls = [(s, checker(s, rows)) for s, rows in shares]
+        outs = self._synced_calls(graph, state, calls, self.stall_timeout)
         kept, parts = [], []
-        for (slot, share), out in zip(shares, outs, strict=True):
+        for (slot, rows), out in zip(shares, outs, strict=True):
             if isinstance(out, BaseException):
                 log.warning("spot checks on %s failed: %s", slot.id, _first_line(out))
                 continue
-            kept.append(share)
+            kept.append(request.pixels[rows])
             parts.append(out)
         if not kept:
             return np.zeros((0, 2), np.int64), np.zeros((PARTS, 0, 3))
         return np.concatenate(kept), np.concatenate(parts, axis=1)
 
-    def _synced_calls(self, graph: SceneGraph, calls: list, timeout: float) -> list[Any]:
+    def _synced_calls(
+        self, graph: SceneGraph, state: SceneState, calls: list, timeout: float
+    ) -> list[Any]:
         """Run ``(slot, call)`` pairs, all in flight at once: ``call(commits, snapshot)`` is an
-        actor call that first reaches the current version of ``graph``; a tracer that answers
-        :class:`OutOfSync` is asked once more with a snapshot. Per call, its result, or the
-        error (a ``ClusterError`` or Ray's) that ended it."""
-        state = graph.state
+        actor call that first reaches ``state`` of ``graph``; a tracer that answers
+        :class:`OutOfSync` is asked once more with a snapshot. Within ``timeout`` seconds for
+        them all (a call still running then is cancelled). Per call, its result, or the error
+        (a ``ClusterError`` or Ray's) that ended it."""
+        deadline = time.perf_counter() + timeout
         pending = []
         for slot, call in calls:
             have = _held(slot, graph.key)
@@ -1390,10 +1407,11 @@ class Coordinator:
         results = []
         for slot, call, have, ref in pending:
             try:
-                out = ray.get(ref, timeout=timeout)
+                out = _get_by(ref, deadline)
                 if isinstance(out, OutOfSync):
                     _hold(slot, graph.key, out.have)
-                    out = ray.get(call([], self._snapshot_ref(graph.key, state)), timeout=timeout)
+                    ref = call([], self._snapshot_ref(graph.key, state))
+                    out = _get_by(ref, deadline)
                 if isinstance(out, OutOfSync):
                     _hold(slot, graph.key, out.have)
                     raise ClusterError(
@@ -1404,6 +1422,16 @@ class Coordinator:
                 out = error
             results.append(out)
         return results
+
+
+def _get_by(ref, deadline: float) -> Any:
+    """``ray.get`` of ``ref`` by ``deadline`` (a ``perf_counter`` time); a call not done by
+    then is cancelled and raises ``GetTimeoutError``."""
+    try:
+        return ray.get(ref, timeout=max(0.0, deadline - time.perf_counter()))
+    except GetTimeoutError:
+        ray.cancel(ref)
+        raise
 
 
 def _first_line(error: BaseException) -> str:

@@ -12,8 +12,9 @@ wave whose estimate meets the target, when the next wave would not fit in the bu
 ``max_spp``. While the error is not estimable, a target keeps the waves going.
 
 After each wave, the few pixels whose error the parts cannot tell (a light smaller than a
-pixel, seen by one part) are *spot-checked*: rendered again, independently, with
-``SPOT_CHECK_FACTOR`` times the frame's samples (``tracer.spot_check``), before the estimate.
+pixel, seen by one part) are *spot-checked* before the estimate: rendered again,
+independently, to ``SPOT_CHECK_FACTOR`` times the frame's samples, topping up their checks of
+earlier waves (``tracer.spot_check``).
 
 :class:`ProgressiveFrame` is the state and the rules, with no Ray in it (a caller may drive it
 one part at a time, as the service does between other work); :func:`render_progressive`
@@ -28,8 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tracer import scene_format as fmt
-from tracer.error_estimate import PARTS, SpotChecks, estimate_rel_error, pixels_to_check
-from tracer.spot_check import spot_check_spp
+from tracer.error_estimate import PARTS, estimate_rel_error
+from tracer.spot_check import SpotCheck, SpotCheckLedger
 
 MAX_PART_SPP = 64
 """Most samples per pixel one part of a wave adds."""
@@ -74,16 +75,6 @@ class Part:
     """Which of the wave's ``PARTS`` parts (0 first)."""
 
 
-@dataclass(frozen=True)
-class SpotCheck:
-    """Pixels of the frame to render again on the spot checks' own sample stream
-    (``tracer.spot_check``), ``spp`` samples each, before the wave's estimate."""
-
-    pixels: np.ndarray
-    """(P, 2) int: y, x."""
-    spp: int
-
-
 @dataclass
 class WaveRecord:
     """The state after a complete wave."""
@@ -122,6 +113,7 @@ class ProgressiveFrame:
     waves: list[WaveRecord] = field(default_factory=list)
     started: float | None = None
     _pending: Part | SpotCheck | None = None
+    _ledger: SpotCheckLedger = field(init=False, repr=False)
     _wave: list[int] = field(default_factory=list)
     """Samples per pixel of the current wave's parts rendered so far."""
     _wave_seconds: float = 0.0
@@ -130,6 +122,7 @@ class ProgressiveFrame:
 
     def __post_init__(self) -> None:
         self.sums = np.zeros((PARTS, self.height, self.width, 3), np.float64)
+        self._ledger = SpotCheckLedger(self.width * self.height)
 
     @property
     def spp(self) -> int:
@@ -179,25 +172,25 @@ class ProgressiveFrame:
         self.part_spp += part.spp
         self._wave = []
         self._last_wave = (PARTS * part.spp, self._wave_seconds)
-        pixels = pixels_to_check(self.sums / self.part_spp)
-        if len(pixels):
-            self._pending = SpotCheck(pixels, spot_check_spp(self.spp))
-        else:
-            self._end_wave(None)
+        self._pending = self._ledger.plan(self.sums / self.part_spp, self.spp)
+        if self._pending is None:
+            self._end_wave()
 
     def add_spot_checks(self, pixels: np.ndarray, parts: np.ndarray, seconds: float) -> None:
         """Add the spot checks that :meth:`next_part` named: the pixels checked ((P', 2), a
         subset of those named, e.g. none when the checks failed) and their (PARTS, P', 3)
         parts; ``seconds`` is what rendering them took."""
-        if not isinstance(self._pending, SpotCheck):
+        request = self._pending
+        if not isinstance(request, SpotCheck):
             raise RuntimeError("add_spot_checks without a pending spot check")
         self._pending = None
         wave_spp, wave_seconds = self._last_wave
         self._last_wave = (wave_spp, wave_seconds + seconds)
-        pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
-        self._end_wave(SpotChecks(pixels, parts) if len(pixels) else None)
+        self._ledger.add(request, pixels, np.asarray(parts, dtype=np.float64))
+        self._end_wave()
 
-    def _end_wave(self, checks: SpotChecks | None) -> None:
+    def _end_wave(self) -> None:
+        checks = self._ledger.checks()
         self.error = estimate_rel_error(self.sums / self.part_spp, checks=checks)
         checked = 0 if checks is None else len(checks.pixels)
         self.waves.append(WaveRecord(self.spp, self.error, self.elapsed, checked))
@@ -248,20 +241,22 @@ def render_progressive(
     """Render ``frame`` through ``coordinator`` (a ``Coordinator``) in waves until ``goal``.
 
     ``camera`` and ``settings`` default to the scene's; ``settings.spp`` is ignored (the waves
-    choose it). ``on_part(progress, frame)`` sees each part as it completes (the coordinator's
-    ``Frame``: its timings and effect plan).
+    choose it). ``on_part(progress, frame)`` sees each part and each wave's spot checks as they
+    complete (``frame``: the coordinator's ``Frame`` of the latest part, its timings and
+    effect plan).
     """
     state = coordinator.graph.state
     camera = camera or state.camera
     settings = settings or state.render
     progress = ProgressiveFrame(camera.width, camera.height, goal)
+    done = None
     while (step := progress.next_part()) is not None:
         start = time.monotonic()
         if isinstance(step, SpotCheck):
-            pixels, parts = coordinator.render_spot_checks(
-                step.pixels, step.spp, frame, camera, settings
-            )
+            pixels, parts = coordinator.render_spot_checks(step, frame, camera, settings)
             progress.add_spot_checks(pixels, parts, time.monotonic() - start)
+            if on_part is not None:
+                on_part(progress, done)
             continue
         done = coordinator.render_frame(
             frame, camera, fmt.override(settings, spp=step.spp), step.sample_start

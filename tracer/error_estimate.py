@@ -99,12 +99,15 @@ AMBIGUITY = 1.5
 """Largest ratio of relative errors between the two readings of those pixels at which the
 estimate is still given."""
 SPOT_CHECKS = 16
-"""Most pixels of a render that are spot-checked (:func:`pixels_to_check`)."""
+"""Most pixels of a render that are spot-checked (``tracer.spot_check``)."""
 SPOT_CHECK_FACTOR = 64
 """Samples per pixel of a spot check, as a multiple of the render's."""
 SPOT_CHECK_SHARE = 1 / 8
-"""Largest share of a render's samples its spot checks may add: fewer pixels are checked in
+"""Largest share of a render's samples its spot checks may take: fewer pixels are checked in
 small images (none below ``SPOT_CHECK_FACTOR / SPOT_CHECK_SHARE`` = 512 pixels)."""
+CHECK_GAP = 0.01
+"""Least gap between a pixel's readings, as a share of the sum of the image's error terms,
+that makes it worth a spot check (:func:`pixels_to_check`)."""
 
 
 @dataclass(frozen=True)
@@ -128,30 +131,23 @@ class SpotChecks:
             )
 
 
-def spot_check_count(pixels: int) -> int:
-    """Pixels to spot-check in an image of ``pixels`` pixels (see ``SPOT_CHECK_SHARE``)."""
-    return int(min(SPOT_CHECKS, pixels * SPOT_CHECK_SHARE // SPOT_CHECK_FACTOR))
-
-
-def pixels_to_check(
-    parts: Images, count: int | None = None, eps: float = REL_EPSILON
-) -> np.ndarray:
+def pixels_to_check(parts: Images, count: int, eps: float = REL_EPSILON) -> np.ndarray:
     """(P, 2) int (y, x), P <= ``count``: the pixels whose error the parts tell least, most
-    uncertain first (default count: :func:`spot_check_count`).
+    uncertain first.
 
     A pixel's error term can lie anywhere between its reading as a light (the parts' mean is
     its value) and its reading with the lowest value the parts make plausible (the second
     smallest part, or the median's 3x3 floor if lower: one or two parts that saw a rare
-    bright path). The pixels with the widest gap between the two, and only those with a gap,
-    are the ones to check.
+    bright path). The pixels with the widest gap between the two are the ones to check, if
+    the gap is at least ``CHECK_GAP`` of the sum of the image's terms (ordinary noise leaves
+    small gaps everywhere, which no check would change much).
     """
     stack = _parts(parts)
-    _, variance, floor, _, as_light = _readings(stack, eps)
+    _, variance, floor, terms, as_light = _readings(stack, eps)
     low = np.minimum(np.sort(stack, axis=0)[1], floor)
     gap = (variance / (low * low + eps) - as_light).sum(axis=2)
-    if count is None:
-        count = spot_check_count(gap.size)
     order = np.argsort(gap, axis=None, kind="stable")[::-1][: max(0, count)]
+    order = order[gap.flat[order] >= CHECK_GAP * terms.sum()]
     order = order[gap.flat[order] > 0.0]
     return np.stack(np.unravel_index(order, gap.shape), axis=1).astype(np.int64)
 

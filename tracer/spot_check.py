@@ -1,70 +1,175 @@
-"""Spot checks: a few pixels of a render rendered again with many more samples, on a sample
-stream of their own, so that they are independent of the render and of any later samples of
+"""Spot checks: a few pixels of a render rendered again with many more samples, on sample
+streams of their own, so that they are independent of the render and of any later samples of
 it. ``tracer.error_estimate`` uses them where a render's own parts cannot tell a pixel's value
-(:func:`tracer.error_estimate.pixels_to_check` chooses the pixels).
+(:func:`tracer.error_estimate.pixels_to_check` ranks the pixels).
+
+A check has ``PARTS`` parts, each on its own stream (the render's seed with bit 62 and the
+part's number in bits 58-59 flipped), so that a progressive render tops a pixel's check up
+from wave to wave instead of rendering it again: :class:`SpotCheckLedger` keeps the sums,
+plans each wave's checks within a share of the render's samples, and hands the estimate the
+checks of the pixels it chose.
 """
+
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from tracer import scene_format as fmt
 from tracer.compile import CompiledScene
 from tracer.effects import EffectPlan, effect_plan
-from tracer.error_estimate import PARTS, SPOT_CHECK_FACTOR
+from tracer.error_estimate import (
+    PARTS,
+    SPOT_CHECK_FACTOR,
+    SPOT_CHECK_SHARE,
+    SPOT_CHECKS,
+    SpotChecks,
+    pixels_to_check,
+)
 from tracer.render import render_pixels
 from tracer.threads import default_threads, run_parts
 
 SEED_BIT = 1 << 62
-"""Flipped in the render's seed to make the checks' seed: pixel keys hash the seed
-(``tracer.rng.pixel_key``), so the checks draw samples no render with a seed below 2^62
-draws."""
+"""Flipped in the render's seed for the checks' streams: pixel keys hash the seed
+(``tracer.rng.pixel_key``), so no render with a seed below 2^58 draws the checks' samples."""
+PART_SHIFT = 58
+"""A check's part number goes into the seed at this bit."""
+CANDIDATES = 4 * SPOT_CHECKS
+"""Pixels a plan considers, most uncertain first: one whose check does not fit the budget
+makes way for the next (a pixel checked before only needs its top-up)."""
 
 
-def spot_check_settings(settings: fmt.RenderSettings) -> fmt.RenderSettings:
-    """The render's settings on the spot checks' own sample stream."""
-    return fmt.override(settings, seed=settings.seed ^ SEED_BIT)
-
-
-def spot_check_spp(render_spp: int) -> int:
-    """Samples per pixel of the spot checks of a render of ``render_spp`` (a multiple of
-    ``PARTS``)."""
-    return PARTS * max(1, SPOT_CHECK_FACTOR * render_spp // PARTS)
+def spot_check_settings(settings: fmt.RenderSettings, part: int) -> fmt.RenderSettings:
+    """The render's settings on part ``part``'s stream of the spot checks."""
+    return fmt.override(settings, seed=settings.seed ^ SEED_BIT ^ (part << PART_SHIFT))
 
 
 def render_spot_checks(
     scene: CompiledScene,
     pixels: np.ndarray,
-    spp: int,
+    part_spp,
+    part_start=0,
     camera: fmt.Camera | None = None,
     settings: fmt.RenderSettings | None = None,
     frame: int = 0,
     threads: int | None = None,
     plan: EffectPlan | None = None,
 ) -> np.ndarray:
-    """(PARTS, P, 3) float64: for each (y, x) of ``pixels`` (P, 2), ``PARTS`` means of
-    ``spp // PARTS`` samples each over disjoint ranges of the checks' stream
-    (:func:`spot_check_settings`). Pixels are rendered one per thread at a time."""
+    """(PARTS, P, 3) float64: for each (y, x) of ``pixels`` (P, 2), the mean of samples
+    ``[part_start, part_start + part_spp)`` of each part's stream (:func:`spot_check_settings`).
+    ``part_spp`` and ``part_start`` are numbers, or one per pixel. Pixels are rendered one per
+    thread at a time."""
     camera = camera or scene.camera
-    settings = spot_check_settings(settings or scene.render)
+    settings = settings or scene.render
     pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
-    if spp < PARTS or spp % PARTS:
-        raise ValueError(f"spot checks need a positive multiple of {PARTS} samples, got {spp}")
+    count = np.broadcast_to(np.asarray(part_spp, dtype=np.int64), len(pixels))
+    start = np.broadcast_to(np.asarray(part_start, dtype=np.int64), len(pixels))
+    if (count < 1).any() or (start < 0).any():
+        raise ValueError("spot checks need at least one sample per part from sample 0 on")
     ys, xs = pixels.T
     if ((ys < 0) | (ys >= camera.height) | (xs < 0) | (xs >= camera.width)).any():
         raise ValueError(f"spot-check pixels must lie in the {camera.width}x{camera.height} frame")
     if plan is None:
         plan = effect_plan(scene, settings)
-    per_part = spp // PARTS
-    part_settings = fmt.override(settings, spp=per_part)
+    streams = [spot_check_settings(settings, k) for k in range(PARTS)]
     out = np.zeros((PARTS, len(pixels), 3))
     jobs = [(k, i) for i in range(len(pixels)) for k in range(PARTS)]
 
     def work(first: int, stride: int) -> None:
         for k, i in jobs[first::stride]:
             p = int(ys[i]) * camera.width + int(xs[i])
-            run = render_pixels(
-                scene, p, p + 1, camera, part_settings, frame, k * per_part, 1, plan
-            )
+            stream = fmt.override(streams[k], spp=int(count[i]))
+            run = render_pixels(scene, p, p + 1, camera, stream, frame, int(start[i]), 1, plan)
             out[k, i] = run.rgb[0]
 
     run_parts(work, min(threads or default_threads(), max(1, len(jobs))))
     return out
+
+
+@dataclass(frozen=True)
+class SpotCheck:
+    """Checks to render: for pixel i of ``pixels`` ((P, 2) y, x), samples ``[part_start[i],
+    part_start[i] + part_spp[i])`` of every part's stream."""
+
+    pixels: np.ndarray
+    part_start: np.ndarray
+    part_spp: np.ndarray
+
+    @property
+    def samples(self) -> int:
+        """Samples the checks take, every part."""
+        return int(PARTS * self.part_spp.sum())
+
+
+@dataclass
+class SpotCheckLedger:
+    """A progressive render's spot checks: per pixel ever checked, the sums of its parts.
+
+    Each wave, :meth:`plan` picks the pixels to check (most uncertain first), each to
+    ``SPOT_CHECK_FACTOR`` times the render's samples, topping up what a pixel already has,
+    while the samples of all checks so far stay within ``SPOT_CHECK_SHARE`` of the render's
+    (and at most ``SPOT_CHECKS`` pixels). :meth:`add` takes the rendered checks;
+    :meth:`checks` gives the estimate the planned pixels that were rendered.
+    """
+
+    pixels: int
+    """Pixels of the frame."""
+    sums: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)
+    """Per pixel (y, x): (PARTS, 3) sums of each part's samples."""
+    counts: dict[tuple[int, int], int] = field(default_factory=dict)
+    """Per pixel: samples per part in ``sums``."""
+    spent: int = 0
+    """Samples of every check so far."""
+    planned: list[tuple[int, int]] = field(default_factory=list)
+    """The pixels of the last plan."""
+    need: int = 0
+    """Samples per part each of them needs."""
+
+    def plan(self, parts: np.ndarray, spp: int) -> SpotCheck | None:
+        """The checks to render for a render of ``spp`` samples per pixel whose parts are
+        ``parts`` ((PARTS, H, W, 3)), or None when none is needed or affordable."""
+        need = max(1, SPOT_CHECK_FACTOR * spp // PARTS)
+        budget = int(SPOT_CHECK_SHARE * spp * self.pixels) - self.spent
+        chosen, starts = [], []
+        for y, x in pixels_to_check(parts, CANDIDATES):
+            key = (int(y), int(x))
+            have = self.counts.get(key, 0)
+            cost = PARTS * max(0, need - have)
+            if cost > budget:
+                continue
+            budget -= cost
+            chosen.append(key)
+            starts.append(have)
+            if len(chosen) == SPOT_CHECKS:
+                break
+        self.planned, self.need = chosen, need
+        todo = [i for i, start in enumerate(starts) if start < need]
+        if not todo:
+            return None
+        return SpotCheck(
+            np.array([chosen[i] for i in todo], dtype=np.int64).reshape(-1, 2),
+            np.array([starts[i] for i in todo], dtype=np.int64),
+            np.array([need - starts[i] for i in todo], dtype=np.int64),
+        )
+
+    def add(self, request: SpotCheck, pixels: np.ndarray, parts: np.ndarray) -> None:
+        """Add the checks of ``request`` that were rendered: ``pixels`` ((P', 2), a subset of
+        the request's) and their (PARTS, P', 3) parts. The others lack samples, so
+        :meth:`checks` leaves them out."""
+        rows = {tuple(int(v) for v in p): i for i, p in enumerate(request.pixels)}
+        for j, p in enumerate(np.asarray(pixels, dtype=np.int64).reshape(-1, 2)):
+            key = (int(p[0]), int(p[1]))
+            i = rows[key]
+            n = int(request.part_spp[i])
+            if self.counts.get(key, 0) != request.part_start[i]:
+                raise ValueError(f"spot check of pixel {key} does not continue its samples")
+            self.sums[key] = self.sums.get(key, np.zeros((PARTS, 3))) + parts[:, j] * n
+            self.counts[key] = self.counts.get(key, 0) + n
+            self.spent += PARTS * n
+
+    def checks(self) -> SpotChecks | None:
+        """The checks of the last plan's pixels that have all their samples (None: none)."""
+        keys = [k for k in self.planned if self.counts.get(k, 0) >= self.need]
+        if not keys:
+            return None
+        parts = np.stack([self.sums[k] / self.counts[k] for k in keys], axis=1)
+        return SpotChecks(np.array(keys, dtype=np.int64), parts)

@@ -300,20 +300,24 @@ class Tracer:
         camera: fmt.Camera | None,
         settings: fmt.RenderSettings | None,
         pixels: np.ndarray,
-        spp: int,
+        part_spp: np.ndarray,
+        part_start: np.ndarray,
         snapshot: bytes | None = None,
         scene: str = DEFAULT_SCENE,
     ) -> "np.ndarray | OutOfSync":
-        """Spot checks of ``pixels`` ((P, 2) y, x) of ``frame`` at ``version`` of ``scene``,
-        ``spp`` samples each (:func:`tracer.spot_check.render_spot_checks`: (PARTS, P, 3)),
-        reaching the version first like a render call."""
+        """Spot checks of ``pixels`` ((P, 2) y, x) of ``frame`` at ``version`` of ``scene``:
+        samples ``[part_start, part_start + part_spp)`` of each part's stream, per pixel
+        (:func:`tracer.spot_check.render_spot_checks`: (PARTS, P, 3)), reaching the version
+        first like a render call."""
         problem = self._reach(scene, version, commits, snapshot)
         if problem is not None:
             return self._out_of_sync(scene, frame, version, problem)
         compiled = self.replicas[scene].at(version)
         camera = camera or compiled.camera
         settings = settings or compiled.render
-        return render_spot_checks(compiled, pixels, spp, camera, settings, frame, self.threads)
+        return render_spot_checks(
+            compiled, pixels, part_spp, part_start, camera, settings, frame, self.threads
+        )
 
     def warm_up(self) -> dict:
         """Render one pixel of the held scene at 1 spp, so the render kernel is loaded (from

@@ -202,10 +202,27 @@ def test_progressive_jobs(client):
     r = client.post("/v1/jobs", json={"scene_id": scene["id"], "time_budget": 0.5, "max_spp": 4096})
     job = wait_job(client, r.json()["id"])
     assert job["status"] == "done" and job["frames"][0]["spp"] >= 2
+
+
+def test_progressive_jobs_spot_check(client, monkeypatch):
+    """From 512 pixels on, a progressive job's waves end with spot checks through the
+    coordinator before their estimate."""
+    from cluster.coordinator import Coordinator
+
+    calls = []
+    check = Coordinator.render_spot_checks
+
+    def counted(self, request, *args, **kwargs):
+        calls.append(len(request.pixels))
+        return check(self, request, *args, **kwargs)
+
+    monkeypatch.setattr(Coordinator, "render_spot_checks", counted)
+    scene = upload_tiny(client)
     body = {"scene_id": scene["id"], "target_error": 0.2, "width": 32, "height": 24}
-    job = wait_job(client, client.post("/v1/jobs", json=body).json()["id"])  # spot-checked
+    job = wait_job(client, client.post("/v1/jobs", json=body).json()["id"])
     assert job["status"] == "done", job
     assert job["frames"][0]["error_estimate"] <= 0.2
+    assert calls and all(n == 1 for n in calls)
 
 
 def test_events_progress_and_cancel(client):

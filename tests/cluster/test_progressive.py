@@ -41,11 +41,11 @@ class FakeClock:
         return self.now
 
 
-def synthetic_part(spp: int, sample_start: int) -> np.ndarray:
+def synthetic_part(spp: int, sample_start: int, height: int = H, width: int = W) -> np.ndarray:
     """A part image of ``spp`` samples: the mean of Gaussian samples around MU, seeded by the
     sample range, so that every range is an independent, reproducible draw."""
     rng = np.random.default_rng(sample_start)
-    return MU + MU * NOISE / math.sqrt(spp) * rng.normal(size=(H, W, 3))
+    return MU + MU * NOISE / math.sqrt(spp) * rng.normal(size=(height, width, 3))
 
 
 def drive(goal: Goal, seconds_per_spp: float = 0.01, clock=None) -> tuple[ProgressiveFrame, list]:
@@ -179,28 +179,61 @@ def lit_pixel_wave(progress: ProgressiveFrame, width: int, height: int) -> None:
 
 
 def test_a_wave_ends_with_spot_checks():
-    """A frame of 32x24 pixels may spot-check one pixel. After the wave's fourth part it names
-    the pixel that one part alone saw lit, with 64 times the frame's samples, and waits for
-    it: no part until then. Without its check the error is not estimable; a check that finds
-    the pixel's value gives the estimate, and the wave records the pixel checked."""
+    """A frame of 32x24 pixels may spot-check one pixel at 4 spp. After the wave's fourth part
+    it names the pixel that one part alone saw lit, to 64 times the frame's samples, and waits
+    for it: no part until then. Without its check the error is not estimable; a check that
+    finds the pixel's value gives the estimate, and the wave records the pixel checked. The
+    next wave's check of it only tops its samples up."""
     width, height = 32, 24
     progress = ProgressiveFrame(width, height, Goal(max_spp=64))
     lit_pixel_wave(progress, width, height)
     check = progress.next_part()
     assert isinstance(check, SpotCheck)
+    need = SPOT_CHECK_FACTOR * progress.spp // PARTS
     assert check.pixels.tolist() == [[5, 7]]
-    assert check.spp == SPOT_CHECK_FACTOR * progress.spp
+    assert check.part_start.tolist() == [0] and check.part_spp.tolist() == [need]
     assert progress.next_part() is check and not progress.waves
     with pytest.raises(RuntimeError, match="pending part"):
         progress.add_part(np.zeros((height, width, 3)), 0.1)
-    value = np.full((PARTS, 1, 3), 1000.0 / progress.spp)  # the light, as the mean saw it
-    progress.add_spot_checks(
-        check.pixels, value * (1.0 + 0.01 * np.arange(PARTS))[:, None, None], 1.0
-    )
+    light = 1000.0 / progress.spp  # the light's value, as the mean saw it
+    spread = (1.0 + 0.01 * np.arange(PARTS))[:, None, None]
+    progress.add_spot_checks(check.pixels, np.full((PARTS, 1, 3), light) * spread, 1.0)
     wave = progress.waves[-1]
     assert wave.checked == 1 and wave.error is not None
     assert progress.error == pytest.approx(wave.error)
-    assert isinstance(progress.next_part(), Part)
+    lit_pixel_wave(progress, width, height)
+    again = progress.next_part()
+    assert again.pixels.tolist() == [[5, 7]]
+    assert again.part_start.tolist() == [need] and again.part_spp.tolist() == [need]
+
+
+def test_spot_checks_count_in_the_time_budget():
+    """The checks' seconds count in their wave's: with checks that cost as much per sample as
+    the parts (at most an eighth of the samples), a budget stops the frame at fewer samples
+    than free checks would, and still within a quarter past the budget."""
+    width, height = 32, 24
+    per_sample = 0.01 / (width * height)  # seconds per pixel sample of the parts
+    stops = []
+    for check_cost in (0.0, per_sample):
+        clock = FakeClock()
+        progress = ProgressiveFrame(width, height, Goal(time_budget=6.0), clock=clock)
+        while (step := progress.next_part()) is not None:
+            if isinstance(step, Part):
+                seconds = step.spp * width * height * per_sample
+                clock.now += seconds
+                image = synthetic_part(step.spp, step.sample_start, height, width)
+                image[5, 7] = 0.0 if step.index != 2 else 1000.0 / step.spp
+                progress.add_part(image, seconds)
+                continue
+            seconds = step.samples * check_cost
+            clock.now += seconds
+            checked = np.full((PARTS, len(step.pixels), 3), MU)
+            progress.add_spot_checks(step.pixels, checked, seconds)
+        assert any(w.checked for w in progress.waves)
+        stops.append(progress)
+    assert all(p.stopped == "time_budget" for p in stops)
+    assert stops[1].spp < stops[0].spp
+    assert all(p.elapsed <= 6.0 * 1.25 for p in stops), [p.elapsed for p in stops]
 
 
 def test_a_failed_spot_check_leaves_the_parts_estimate():
@@ -229,8 +262,8 @@ def coordinator():
 def test_through_the_coordinator(coordinator):
     """Waves through tracer actors: the image is the mean of samples [0, spp), which the
     library renders in one call (equal up to float32 rounding of the part means), and the
-    reported error is the estimate from the parts (on this 32x24 image with a small lamp, it
-    is not estimable up to 16 spp: a target waits for it)."""
+    reported error is the estimate from the parts and their spot checks (one pixel of this
+    32x24 image per wave); a target at 1.5 times it stops the frame."""
     state = coordinator.graph.state
     progress = render_progressive(coordinator, Goal(max_spp=32))
     assert progress.stopped == "max_spp" and progress.spp == 32
@@ -243,11 +276,28 @@ def test_through_the_coordinator(coordinator):
 
 
 def test_spot_checks_through_the_coordinator(coordinator):
-    """The coordinator shares the pixels out over its tracers; every pixel comes back with the
-    parts the library renders for it."""
-    state = coordinator.graph.state
+    """The coordinator shares the pixels out over its tracers (each reaching the frame's
+    version: here after a commit); every pixel comes back with the parts the library renders
+    for it, over its own sample range."""
+    graph = coordinator.graph
+    graph.commit(
+        [{"op": "set_transform", "node": "box-a", "transform": {"translate": [0.4, 1, 0]}}]
+    )
     pixels = np.array([[1, 2], [10, 20], [5, 5], [23, 31], [0, 0]])
-    got_pixels, got = coordinator.render_spot_checks(pixels, 16)
-    assert sorted(map(tuple, got_pixels.tolist())) == sorted(map(tuple, pixels.tolist()))
-    expected = render_spot_checks(compile_scene(state), got_pixels, 16)
+    request = SpotCheck(pixels, np.array([0, 4, 0, 8, 2]), np.array([4, 4, 2, 2, 1]))
+    got_pixels, got = coordinator.render_spot_checks(request)
+    order = [pixels.tolist().index(p) for p in got_pixels.tolist()]
+    assert sorted(order) == list(range(len(pixels)))
+    expected = render_spot_checks(
+        compile_scene(graph.state), got_pixels, request.part_spp[order], request.part_start[order]
+    )
     np.testing.assert_array_equal(got, expected)
+
+
+def test_a_failed_share_drops_only_its_pixels(coordinator):
+    """Two tracers, two pixels: the second tracer's pixel lies outside the frame, so its share
+    fails; the first pixel still comes back, checked."""
+    camera = coordinator.graph.state.camera
+    request = SpotCheck(np.array([[3, 4], [camera.height, 0]]), np.array([0, 0]), np.array([2, 2]))
+    got_pixels, got = coordinator.render_spot_checks(request)
+    assert got_pixels.tolist() == [[3, 4]] and got.shape == (PARTS, 1, 3)

@@ -1,23 +1,26 @@
-"""Spot checks (``tracer.spot_check``): a few pixels rendered again with many more samples on
-a sample stream of their own. Their parts are exactly the pixel's render on that stream, cut
-into disjoint sample ranges; the stream is not the render's; threads change nothing; bad
-pixels and sample counts are refused."""
+"""Spot checks (``tracer.spot_check``): a few pixels rendered again on sample streams of their
+own, one per part. A part is exactly the pixel's render on its stream, over the sample range
+asked for; the streams are not the render's nor each other's; threads change nothing; bad
+pixels and sample counts are refused. The ledger plans checks within their share of the
+render's samples, tops them up from wave to wave, and keeps only what was rendered."""
 
 import numpy as np
 import pytest
 
-from tracer.error_estimate import PARTS
+from tracer.error_estimate import PARTS, SPOT_CHECK_FACTOR, SPOT_CHECK_SHARE
 from tracer.render import render_pixels
 from tracer.scene_format import override
 from tracer.spot_check import (
     SEED_BIT,
+    SpotCheckLedger,
     render_spot_checks,
     spot_check_settings,
-    spot_check_spp,
 )
 
 WIDTH, HEIGHT = 12, 9
 PIXELS = np.array([[4, 6], [0, 0], [8, 11]])
+LIT = np.array([[y, x] for y in range(3, 6) for x in range(4, 8)])
+"""Pixels the Cornell box lights at this size."""
 
 
 @pytest.fixture(scope="module")
@@ -26,70 +29,116 @@ def view(cornell):
     return cornell, camera, override(cornell.render, seed=5)
 
 
-def test_parts_are_the_pixels_render_on_the_checks_stream(view):
-    """Part k of pixel (y, x) is samples [k * spp / 4, (k + 1) * spp / 4) of that pixel with the
-    checks' seed, bit for bit; their mean is the pixel's mean over all spp samples."""
+def test_parts_are_the_pixels_render_on_their_streams(view):
+    """Part k of pixel (y, x) is samples [start, start + spp) of that pixel with part k's
+    seed, bit for bit, for one sample range per pixel."""
     scene, camera, settings = view
-    spp = 16
-    parts = render_spot_checks(scene, PIXELS, spp, camera, settings, threads=1)
+    part_spp, part_start = np.array([4, 2, 3]), np.array([0, 5, 1])
+    parts = render_spot_checks(scene, PIXELS, part_spp, part_start, camera, settings, threads=1)
     assert parts.shape == (PARTS, len(PIXELS), 3)
-    stream = spot_check_settings(settings)
-    assert stream.seed == settings.seed ^ SEED_BIT
-    for i, (y, x) in enumerate(PIXELS):
-        p = y * WIDTH + x
-        for k in range(PARTS):
-            one = render_pixels(
-                scene, p, p + 1, camera, override(stream, spp=spp // PARTS), 0, k * spp // PARTS
-            )
-            np.testing.assert_array_equal(parts[k, i], one.rgb[0])
-        whole = render_pixels(scene, p, p + 1, camera, override(stream, spp=spp))
-        np.testing.assert_allclose(parts[:, i].mean(axis=0), whole.rgb[0], rtol=1e-5, atol=1e-7)
+    for k in range(PARTS):
+        stream = spot_check_settings(settings, k)
+        assert stream.seed == settings.seed ^ SEED_BIT ^ (k << 58)
+        for i, (y, x) in enumerate(PIXELS):
+            p = y * WIDTH + x
+            one = override(stream, spp=int(part_spp[i]))
+            run = render_pixels(scene, p, p + 1, camera, one, 0, int(part_start[i]))
+            np.testing.assert_array_equal(parts[k, i], run.rgb[0])
 
 
-def test_the_checks_stream_is_not_the_renders(view):
-    """The render's own samples of the same lit pixels differ (an independent stream)."""
+def test_a_top_up_continues_the_samples(view):
+    """Samples [0, 4) and [4, 8) of a part average to samples [0, 8) (float32 rounding)."""
     scene, camera, settings = view
-    lit = np.array([[y, x] for y in range(3, 6) for x in range(4, 8)])
-    checked = render_spot_checks(scene, lit, 64, camera, settings).mean(axis=0)
-    for i, (y, x) in enumerate(lit):
+    first = render_spot_checks(scene, LIT, 4, 0, camera, settings)
+    then = render_spot_checks(scene, LIT, 4, 4, camera, settings)
+    whole = render_spot_checks(scene, LIT, 8, 0, camera, settings)
+    np.testing.assert_allclose((first + then) / 2, whole, rtol=1e-5, atol=1e-7)
+
+
+def test_the_streams_are_independent(view):
+    """The render's own samples of lit pixels differ from every part's, and parts differ
+    from each other."""
+    scene, camera, settings = view
+    checked = render_spot_checks(scene, LIT, 16, 0, camera, settings)
+    for i, (y, x) in enumerate(LIT):
         p = y * WIDTH + x
-        own = render_pixels(scene, p, p + 1, camera, override(settings, spp=64)).rgb[0]
-        assert own.sum() > 0.0 and checked[i].sum() > 0.0
-        assert np.abs(own - checked[i]).max() > 1e-4
+        own = render_pixels(scene, p, p + 1, camera, override(settings, spp=16)).rgb[0]
+        assert own.sum() > 0.0 and (checked[:, i].sum(axis=1) > 0.0).all()
+        for k in range(PARTS):
+            assert np.abs(own - checked[k, i]).max() > 1e-4
+            assert all(np.abs(checked[j, i] - checked[k, i]).max() > 1e-4 for j in range(k))
 
 
 def test_threads_change_nothing(view):
     scene, camera, settings = view
-    one = render_spot_checks(scene, PIXELS, 8, camera, settings, threads=1)
-    two = render_spot_checks(scene, PIXELS, 8, camera, settings, threads=2)
+    one = render_spot_checks(scene, PIXELS, 2, 0, camera, settings, threads=1)
+    two = render_spot_checks(scene, PIXELS, 2, 0, camera, settings, threads=2)
     np.testing.assert_array_equal(one, two)
 
 
-def test_checks_take_64_times_the_renders_samples():
-    assert spot_check_spp(4) == 256
-    assert spot_check_spp(1024) == 65536
-    assert spot_check_spp(1) % PARTS == 0
-
-
 @pytest.mark.parametrize(
-    ("pixels", "spp", "words"),
+    ("pixels", "spp", "start", "words"),
     [
-        ([[HEIGHT, 0]], 8, "in the 12x9 frame"),
-        ([[0, -1]], 8, "in the 12x9 frame"),
-        ([[0, 0]], 6, "multiple of 4"),
-        ([[0, 0]], 0, "multiple of 4"),
+        ([[HEIGHT, 0]], 2, 0, "in the 12x9 frame"),
+        ([[0, -1]], 2, 0, "in the 12x9 frame"),
+        ([[0, 0]], 0, 0, "at least one sample"),
+        ([[0, 0]], 2, -1, "at least one sample"),
     ],
 )
-def test_bad_checks_are_refused(view, pixels, spp, words):
+def test_bad_checks_are_refused(view, pixels, spp, start, words):
     scene, camera, settings = view
     with pytest.raises(ValueError, match=words):
-        render_spot_checks(scene, np.array(pixels), spp, camera, settings)
+        render_spot_checks(scene, np.array(pixels), spp, start, camera, settings)
 
 
-def test_no_pixels_no_checks(view):
-    scene, camera, settings = view
-    assert render_spot_checks(scene, np.zeros((0, 2), int), 8, camera, settings).shape == (
-        PARTS,
-        0,
-        3,
-    )
+def lit_parts(rng, height=32, width=32, spots=((5, 7), (20, 9), (11, 25))):
+    """Four noisy part images in which part 2 alone saw each spot lit."""
+    images = 0.5 + 0.01 * rng.normal(size=(PARTS, height, width, 3))
+    for y, x in spots:
+        images[:, y, x] = 0.0
+        images[2, y, x] = 40.0
+    return images
+
+
+def test_the_ledger_keeps_checks_within_their_share():
+    """A 32x32 frame at 4 spp may spend an eighth of 4 x 1024 samples: two pixels of 64 x 4
+    samples; the most uncertain spots come first; nothing is spent before a check is added."""
+    ledger = SpotCheckLedger(32 * 32)
+    request = ledger.plan(lit_parts(np.random.default_rng(1)), 4)
+    need = SPOT_CHECK_FACTOR * 4 // PARTS
+    assert len(request.pixels) == 2 and request.samples == 2 * PARTS * need
+    assert request.samples <= SPOT_CHECK_SHARE * 4 * 1024
+    assert request.part_start.tolist() == [0, 0] and request.part_spp.tolist() == [need, need]
+    assert ledger.spent == 0 and ledger.checks() is None  # planned, not yet rendered
+    flat = np.full((PARTS, 32, 32, 3), 0.5)
+    assert ledger.plan(flat, 4) is None and ledger.checks() is None
+
+
+def test_the_ledger_tops_checks_up():
+    """The next wave (8 spp) checks the same pixels again: only samples [64, 128) of each
+    part are asked for, and the checks given to the estimate are the means of both."""
+    rng = np.random.default_rng(2)
+    ledger = SpotCheckLedger(32 * 32)
+    images = lit_parts(rng)
+    first = ledger.plan(images, 4)
+    ledger.add(first, first.pixels, np.full((PARTS, 2, 3), 1.0))
+    then = ledger.plan(images, 8)
+    assert then.pixels.tolist() == first.pixels.tolist()
+    assert then.part_start.tolist() == [64, 64] and then.part_spp.tolist() == [64, 64]
+    ledger.add(then, then.pixels, np.full((PARTS, 2, 3), 3.0))
+    checks = ledger.checks()
+    assert checks.pixels.tolist() == first.pixels.tolist()
+    np.testing.assert_allclose(checks.parts, 2.0)
+    assert ledger.spent == first.samples + then.samples <= SPOT_CHECK_SHARE * 8 * 1024
+
+
+def test_the_ledger_drops_what_was_not_rendered():
+    """Checks that came back for one pixel only (a tracer failed): the estimate gets that one;
+    a check that does not continue a pixel's samples is refused."""
+    ledger = SpotCheckLedger(32 * 32)
+    request = ledger.plan(lit_parts(np.random.default_rng(3)), 4)
+    with pytest.raises(ValueError, match="continue"):
+        bad = type(request)(request.pixels, request.part_start + 1, request.part_spp)
+        ledger.add(bad, request.pixels[:1], np.ones((PARTS, 1, 3)))
+    ledger.add(request, request.pixels[1:], np.ones((PARTS, 1, 3)))
+    assert ledger.checks().pixels.tolist() == request.pixels[1:].tolist()
