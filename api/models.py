@@ -210,6 +210,8 @@ class Progress(BaseModel):
     samples_done: int = 0
     spp_current_frame: int | None = None
     error_estimate: float | None = None
+    error_spp: int | None = None
+    """Samples per pixel the estimate was made at (the last complete wave's)."""
     eta_seconds: float | None = None
     elapsed_seconds: float | None = None
 

@@ -268,6 +268,7 @@ class JobRun:
             "samples_done": self.samples_done,
             "spp_current_frame": spp_current if self.mode != "spp" else self.spp,
             "error_estimate": None if p is None else p.error,
+            "error_spp": p.waves[-1].spp if p is not None and p.waves else None,
             "eta_seconds": None if eta is None else round(eta, 3),
             "elapsed_seconds": round(elapsed, 3),
         }

@@ -326,7 +326,8 @@ class SpotCheckCache:
     def __init__(self, setup: Setup) -> None:
         self.setup = setup
         cam = setup.camera
-        self.path = DEV_DIR / f"{setup.name}-{cam.width}x{cam.height}-s{DEV_SEED}-checks.npz"
+        name = f"{setup.name}-{cam.width}x{cam.height}-s{DEV_SEED}-checks-per-part-streams.npz"
+        self.path = DEV_DIR / name
         self.entries: dict[str, np.ndarray] = {}
         if self.path.is_file():
             with np.load(self.path) as cached:

@@ -1396,7 +1396,8 @@ class Coordinator:
         """Run ``(slot, call)`` pairs, all in flight at once: ``call(commits, snapshot)`` is an
         actor call that first reaches ``state`` of ``graph``; a tracer that answers
         :class:`OutOfSync` is asked once more with a snapshot. Within ``timeout`` seconds for
-        them all (a call still running then is cancelled). Per call, its result, or the error
+        them all, retries included; a call not done by then is cancelled (if still queued: a
+        running one finishes, and its result is dropped). Per call, its result, or the error
         (a ``ClusterError`` or Ray's) that ended it."""
         deadline = time.perf_counter() + timeout
         pending = []
@@ -1426,7 +1427,7 @@ class Coordinator:
 
 def _get_by(ref, deadline: float) -> Any:
     """``ray.get`` of ``ref`` by ``deadline`` (a ``perf_counter`` time); a call not done by
-    then is cancelled and raises ``GetTimeoutError``."""
+    then is cancelled (Ray drops it if still queued) and raises ``GetTimeoutError``."""
     try:
         return ray.get(ref, timeout=max(0.0, deadline - time.perf_counter()))
     except GetTimeoutError:

@@ -183,10 +183,10 @@ class ProgressiveFrame:
         request = self._pending
         if not isinstance(request, SpotCheck):
             raise RuntimeError("add_spot_checks without a pending spot check")
+        self._ledger.add(request, pixels, parts)  # all or nothing
         self._pending = None
         wave_spp, wave_seconds = self._last_wave
         self._last_wave = (wave_spp, wave_seconds + seconds)
-        self._ledger.add(request, pixels, np.asarray(parts, dtype=np.float64))
         self._end_wave()
 
     def _end_wave(self) -> None:

@@ -114,8 +114,8 @@ that makes it worth a spot check (:func:`pixels_to_check`)."""
 class SpotChecks:
     """A few pixels of a render rendered again, independently of it, with many more samples.
 
-    ``pixels`` is (P, 2) int (y, x); ``parts`` is (K, P, 3) float, K >= 2 means of equal
-    sample counts over disjoint sample ranges (their spread gives the checks' own variance).
+    ``pixels`` is (P, 2) int (y, x); ``parts`` is (K, P, 3) float, K >= 2 independent means
+    of equal sample counts (their spread gives the checks' own variance).
     """
 
     pixels: np.ndarray

@@ -29,8 +29,9 @@ from tracer.render import render_pixels
 from tracer.threads import default_threads, run_parts
 
 SEED_BIT = 1 << 62
-"""Flipped in the render's seed for the checks' streams: pixel keys hash the seed
-(``tracer.rng.pixel_key``), so no render with a seed below 2^58 draws the checks' samples."""
+"""Flipped in the render's seed for the checks' streams: pixel keys hash the whole seed
+(``tracer.rng.pixel_key``), so a render's checks never draw its samples (bit 62 differs), and
+for seeds below 2^58 no other render or its checks draw them either."""
 PART_SHIFT = 58
 """A check's part number goes into the seed at this bit."""
 CANDIDATES = 4 * SPOT_CHECKS
@@ -46,8 +47,8 @@ def spot_check_settings(settings: fmt.RenderSettings, part: int) -> fmt.RenderSe
 def render_spot_checks(
     scene: CompiledScene,
     pixels: np.ndarray,
-    part_spp,
-    part_start=0,
+    part_spp: int | np.ndarray,
+    part_start: int | np.ndarray = 0,
     camera: fmt.Camera | None = None,
     settings: fmt.RenderSettings | None = None,
     frame: int = 0,
@@ -154,14 +155,20 @@ class SpotCheckLedger:
     def add(self, request: SpotCheck, pixels: np.ndarray, parts: np.ndarray) -> None:
         """Add the checks of ``request`` that were rendered: ``pixels`` ((P', 2), a subset of
         the request's) and their (PARTS, P', 3) parts. The others lack samples, so
-        :meth:`checks` leaves them out."""
-        rows = {tuple(int(v) for v in p): i for i, p in enumerate(request.pixels)}
-        for j, p in enumerate(np.asarray(pixels, dtype=np.int64).reshape(-1, 2)):
-            key = (int(p[0]), int(p[1]))
-            i = rows[key]
-            n = int(request.part_spp[i])
-            if self.counts.get(key, 0) != request.part_start[i]:
+        :meth:`checks` leaves them out. All or nothing: checks that are not the request's
+        are refused (ValueError) before anything is added."""
+        rows = {(int(y), int(x)): i for i, (y, x) in enumerate(request.pixels)}
+        keys = [(int(y), int(x)) for y, x in np.asarray(pixels, dtype=np.int64).reshape(-1, 2)]
+        parts = np.asarray(parts, dtype=np.float64)
+        if parts.shape != (PARTS, len(keys), 3):
+            raise ValueError(f"expected spot-check parts of shape {(PARTS, len(keys), 3)}")
+        if len(set(keys)) != len(keys) or any(k not in rows for k in keys):
+            raise ValueError("spot checks must be distinct pixels of the request")
+        for key in keys:
+            if self.counts.get(key, 0) != request.part_start[rows[key]]:
                 raise ValueError(f"spot check of pixel {key} does not continue its samples")
+        for j, key in enumerate(keys):
+            n = int(request.part_spp[rows[key]])
             self.sums[key] = self.sums.get(key, np.zeros((PARTS, 3))) + parts[:, j] * n
             self.counts[key] = self.counts.get(key, 0) + n
             self.spent += PARTS * n

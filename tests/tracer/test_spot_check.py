@@ -133,12 +133,16 @@ def test_the_ledger_tops_checks_up():
 
 
 def test_the_ledger_drops_what_was_not_rendered():
-    """Checks that came back for one pixel only (a tracer failed): the estimate gets that one;
-    a check that does not continue a pixel's samples is refused."""
+    """Checks that came back for one pixel only (a tracer failed): the estimate gets that one.
+    Checks that do not continue a pixel's samples, or name a pixel twice, are refused and
+    change nothing."""
     ledger = SpotCheckLedger(32 * 32)
     request = ledger.plan(lit_parts(np.random.default_rng(3)), 4)
+    bad = type(request)(request.pixels, request.part_start + [0, 1], request.part_spp)
     with pytest.raises(ValueError, match="continue"):
-        bad = type(request)(request.pixels, request.part_start + 1, request.part_spp)
-        ledger.add(bad, request.pixels[:1], np.ones((PARTS, 1, 3)))
+        ledger.add(bad, request.pixels, np.ones((PARTS, 2, 3)))
+    with pytest.raises(ValueError, match="distinct"):
+        ledger.add(request, request.pixels[[0, 0]], np.ones((PARTS, 2, 3)))
+    assert ledger.spent == 0 and not ledger.counts and ledger.checks() is None
     ledger.add(request, request.pixels[1:], np.ones((PARTS, 1, 3)))
     assert ledger.checks().pixels.tolist() == request.pixels[1:].tolist()
