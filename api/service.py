@@ -201,10 +201,10 @@ class JobRun:
         part = p.next_part()
         t0 = time.monotonic()
         if isinstance(part, SpotCheck):
-            pixels, parts = coordinator.render_spot_checks(
+            pixels, parts, work = coordinator.render_spot_checks(
                 part, spec.number, camera, render, self.graph
             )
-            p.add_spot_checks(pixels, parts, time.monotonic() - t0)
+            p.add_spot_checks(pixels, parts, time.monotonic() - t0, work)
             return self._complete(spec, p.image, p.spp, p.error, p.elapsed) if p.done else None
         self.inflight = coordinator.submit_frame(
             spec.number, camera, fmt.override(render, spp=part.spp), part.sample_start, self.graph
@@ -214,7 +214,7 @@ class JobRun:
         finally:
             self.inflight = None
         self.last_frame = frame
-        p.add_part(frame.rgb, time.monotonic() - t0)
+        p.add_part(frame.rgb, time.monotonic() - t0, float(frame.cost.sum()))
         self.samples_done += camera.width * camera.height * part.spp
         if not p.done:
             return None

@@ -318,9 +318,10 @@ def evaluate_scene(setup: Setup, means: np.ndarray, max_spp: int) -> list[dict]:
 
 class SpotCheckCache:
     """The spot checks of a scene's development renders (``tracer.spot_check``, planned for
-    each render on its own as the first wave to reach its spp would, on a checks stream of
-    its own per repeat: the development seed plus the repeat), cached in ``DEV_DIR`` per level
-    and repeat with the pixels they checked (rendered again when the pixels chosen differ).
+    each render on its own as the first wave to reach its spp would, priced in samples (the
+    batches keep no work counts), on a checks stream of its own per repeat: the development
+    seed plus the repeat), cached in ``DEV_DIR`` per level and repeat with the pixels they
+    checked (rendered again when the pixels chosen differ).
     Delete the file after a change to the tracer's rendering."""
 
     def __init__(self, setup: Setup) -> None:
@@ -351,7 +352,7 @@ class SpotCheckCache:
                 request.part_start,
                 self.setup.camera,
                 settings,
-            )
+            )[0]
             self.changed = True
         ledger.add(request, request.pixels, self.entries[f"{key}-parts"])
         return ledger.checks()

@@ -513,7 +513,7 @@ def calibration(
     threads = options.threads or default_threads()
     sums = np.zeros((PARTS, camera.height, camera.width, 3))
     per_part = 0
-    seconds = 0.0
+    seconds, work = 0.0, 0.0
     ledger = SpotCheckLedger(camera.width * camera.height)
     records = []
     for level in spp_levels(options.max_spp):
@@ -522,7 +522,7 @@ def calibration(
         n = level // PARTS - per_part
         for k in range(PARTS):
             with RenderClock(threads) as clock:
-                rgb, _ = render_image(
+                rgb, cost = render_image(
                     scene,
                     camera,
                     fmt.override(settings, spp=n),
@@ -530,15 +530,16 @@ def calibration(
                     threads=threads,
                 )
             seconds += clock.seconds
+            work += float(cost.sum())
             sums[k] += rgb.astype(np.float64) * n
             on_samples(n)
         per_part += n
         parts = sums / per_part
-        request = ledger.plan(parts, level)
+        request = ledger.plan(parts, level, work)
         check_seconds = 0.0
         if request is not None:
             with RenderClock(threads) as clock:
-                checked = render_spot_checks(
+                checked, check_work = render_spot_checks(
                     scene,
                     request.pixels,
                     request.part_spp,
@@ -547,7 +548,7 @@ def calibration(
                     settings,
                     threads=threads,
                 )
-            ledger.add(request, request.pixels, checked)
+            ledger.add(request, request.pixels, checked, check_work)
             check_seconds = clock.seconds
         checks = ledger.checks()
         true_mse = rel_mse(parts.mean(axis=0), ref.mean) - floor

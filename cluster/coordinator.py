@@ -1348,12 +1348,13 @@ class Coordinator:
         camera: fmt.Camera | None = None,
         settings: fmt.RenderSettings | None = None,
         graph: SceneGraph | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """A progressive frame's spot checks (``tracer.spot_check``) of ``frame`` at the
         current version of ``graph``, shared out over the ready tracers. Returns ``(pixels,
-        parts)``: the pixels checked and their (PARTS, P', 3) parts. A tracer that fails its
-        share, or has not answered after ``stall_timeout``, drops those pixels (the estimate
-        then reads them from the render's own parts) rather than the frame."""
+        parts, work)``: the pixels checked, their (PARTS, P', 3) parts and (P',) work. A
+        tracer that fails its share, or has not answered after ``stall_timeout``, drops those
+        pixels (the estimate then reads them from the render's own parts) rather than the
+        frame."""
         graph = graph or self.graph
         state = graph.state
         slots = self._schedulable()
@@ -1379,16 +1380,16 @@ class Coordinator:
 
         calls = [(s, checker(s, rows)) for s, rows in shares]
         outs = self._synced_calls(graph, state, calls, self.stall_timeout)
-        kept, parts = [], []
+        kept, parts = [np.zeros((0, 2), np.int64)], [np.zeros((PARTS, 0, 3))]
+        work = [np.zeros(0, np.int64)]
         for (slot, rows), out in zip(shares, outs, strict=True):
             if isinstance(out, BaseException):
                 log.warning("spot checks on %s failed: %s", slot.id, _first_line(out))
                 continue
             kept.append(request.pixels[rows])
-            parts.append(out)
-        if not kept:
-            return np.zeros((0, 2), np.int64), np.zeros((PARTS, 0, 3))
-        return np.concatenate(kept), np.concatenate(parts, axis=1)
+            parts.append(out[0])
+            work.append(out[1])
+        return np.concatenate(kept), np.concatenate(parts, axis=1), np.concatenate(work)
 
     def _synced_calls(
         self, graph: SceneGraph, state: SceneState, calls: list, timeout: float

@@ -105,6 +105,8 @@ class ProgressiveFrame:
     """Per part, the sum of its samples' images, float64 (PARTS, H, W, 3)."""
     part_spp: int = 0
     """Samples per pixel in each part after the last complete wave."""
+    work: float | None = 0.0
+    """The kernels' work count of every part so far (None once a part came without it)."""
     error: float | None = None
     """The estimated relative RMS error of :attr:`image` after the last complete wave (None
     before the first, and while it cannot be estimated yet)."""
@@ -155,15 +157,17 @@ class ProgressiveFrame:
         self._pending = Part(self.spp, spp, len(self._wave))
         return self._pending
 
-    def add_part(self, rgb: np.ndarray, seconds: float) -> None:
+    def add_part(self, rgb: np.ndarray, seconds: float, work: float | None = None) -> None:
         """Add the rendered part (float (H, W, 3), the mean of its samples) that
-        :meth:`next_part` named; ``seconds`` is what rendering it took."""
+        :meth:`next_part` named; ``seconds`` is what rendering it took, ``work`` the kernels'
+        work count (the spot checks' budget; without it they count samples)."""
         part = self._pending
         if not isinstance(part, Part):
             raise RuntimeError("add_part without a pending part (call next_part first)")
         if rgb.shape != self.sums.shape[1:]:
             raise ValueError(f"expected an image of shape {self.sums.shape[1:]}, got {rgb.shape}")
         self._pending = None
+        self.work = None if work is None or self.work is None else self.work + float(work)
         self.sums[part.index] += np.asarray(rgb, np.float64) * part.spp
         self._wave.append(part.spp)
         self._wave_seconds = seconds if part.index == 0 else self._wave_seconds + seconds
@@ -172,18 +176,24 @@ class ProgressiveFrame:
         self.part_spp += part.spp
         self._wave = []
         self._last_wave = (PARTS * part.spp, self._wave_seconds)
-        self._pending = self._ledger.plan(self.sums / self.part_spp, self.spp)
+        self._pending = self._ledger.plan(self.sums / self.part_spp, self.spp, self.work)
         if self._pending is None:
             self._end_wave()
 
-    def add_spot_checks(self, pixels: np.ndarray, parts: np.ndarray, seconds: float) -> None:
+    def add_spot_checks(
+        self,
+        pixels: np.ndarray,
+        parts: np.ndarray,
+        seconds: float,
+        work: np.ndarray | None = None,
+    ) -> None:
         """Add the spot checks that :meth:`next_part` named: the pixels checked ((P', 2), a
-        subset of those named, e.g. none when the checks failed) and their (PARTS, P', 3)
-        parts; ``seconds`` is what rendering them took."""
+        subset of those named, e.g. none when the checks failed), their (PARTS, P', 3) parts
+        and (P',) work; ``seconds`` is what rendering them took."""
         request = self._pending
         if not isinstance(request, SpotCheck):
             raise RuntimeError("add_spot_checks without a pending spot check")
-        self._ledger.add(request, pixels, parts)  # all or nothing
+        self._ledger.add(request, pixels, parts, work)  # all or nothing
         self._pending = None
         wave_spp, wave_seconds = self._last_wave
         self._last_wave = (wave_spp, wave_seconds + seconds)
@@ -253,15 +263,15 @@ def render_progressive(
     while (step := progress.next_part()) is not None:
         start = time.monotonic()
         if isinstance(step, SpotCheck):
-            pixels, parts = coordinator.render_spot_checks(step, frame, camera, settings)
-            progress.add_spot_checks(pixels, parts, time.monotonic() - start)
+            pixels, parts, work = coordinator.render_spot_checks(step, frame, camera, settings)
+            progress.add_spot_checks(pixels, parts, time.monotonic() - start, work)
             if on_part is not None:
                 on_part(progress, done)
             continue
         done = coordinator.render_frame(
             frame, camera, fmt.override(settings, spp=step.spp), step.sample_start
         )
-        progress.add_part(done.rgb, time.monotonic() - start)
+        progress.add_part(done.rgb, time.monotonic() - start, float(done.cost.sum()))
         if on_part is not None:
             on_part(progress, done)
     return progress

@@ -54,11 +54,12 @@ def render_spot_checks(
     frame: int = 0,
     threads: int | None = None,
     plan: EffectPlan | None = None,
-) -> np.ndarray:
-    """(PARTS, P, 3) float64: for each (y, x) of ``pixels`` (P, 2), the mean of samples
-    ``[part_start, part_start + part_spp)`` of each part's stream (:func:`spot_check_settings`).
-    ``part_spp`` and ``part_start`` are numbers, or one per pixel. Pixels are rendered one per
-    thread at a time."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(parts, work)``: ``parts`` (PARTS, P, 3) float64 is, for each (y, x) of ``pixels``
+    (P, 2), the mean of samples ``[part_start, part_start + part_spp)`` of each part's stream
+    (:func:`spot_check_settings`); ``work`` (P,) int64 the kernels' work count of each pixel's
+    check, every part. ``part_spp`` and ``part_start`` are numbers, or one per pixel. Pixels
+    are rendered one per thread at a time."""
     camera = camera or scene.camera
     settings = settings or scene.render
     pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
@@ -73,17 +74,19 @@ def render_spot_checks(
         plan = effect_plan(scene, settings)
     streams = [spot_check_settings(settings, k) for k in range(PARTS)]
     out = np.zeros((PARTS, len(pixels), 3))
+    work = np.zeros((PARTS, len(pixels)), np.int64)
     jobs = [(k, i) for i in range(len(pixels)) for k in range(PARTS)]
 
-    def work(first: int, stride: int) -> None:
+    def render(first: int, stride: int) -> None:
         for k, i in jobs[first::stride]:
             p = int(ys[i]) * camera.width + int(xs[i])
             stream = fmt.override(streams[k], spp=int(count[i]))
             run = render_pixels(scene, p, p + 1, camera, stream, frame, int(start[i]), 1, plan)
             out[k, i] = run.rgb[0]
+            work[k, i] = run.cost[0]
 
-    run_parts(work, min(threads or default_threads(), max(1, len(jobs))))
-    return out
+    run_parts(render, min(threads or default_threads(), max(1, len(jobs))))
+    return out, work.sum(axis=0)
 
 
 @dataclass(frozen=True)
@@ -107,9 +110,14 @@ class SpotCheckLedger:
 
     Each wave, :meth:`plan` picks the pixels to check (most uncertain first), each to
     ``SPOT_CHECK_FACTOR`` times the render's samples, topping up what a pixel already has,
-    while the samples of all checks so far stay within ``SPOT_CHECK_SHARE`` of the render's
-    (and at most ``SPOT_CHECKS`` pixels). :meth:`add` takes the rendered checks;
-    :meth:`checks` gives the estimate the planned pixels that were rendered.
+    while the work of all checks so far stays within ``SPOT_CHECK_SHARE`` of the render's
+    (and at most ``SPOT_CHECKS`` pixels); a pixel checked before whose top-up does not fit
+    keeps its older check. Work is the kernels' work count (deterministic,
+    unlike seconds): a check is priced at its pixel's work per sample in its last check, or
+    the render's mean before its first (checked pixels, glints and caustics, often cost
+    several times the mean); without the render's work, every sample counts one. :meth:`add`
+    takes the rendered checks; :meth:`checks` gives the estimate the planned pixels that were
+    rendered.
     """
 
     pixels: int
@@ -118,28 +126,37 @@ class SpotCheckLedger:
     """Per pixel (y, x): (PARTS, 3) sums of each part's samples."""
     counts: dict[tuple[int, int], int] = field(default_factory=dict)
     """Per pixel: samples per part in ``sums``."""
-    spent: int = 0
-    """Samples of every check so far."""
+    rates: dict[tuple[int, int], float] = field(default_factory=dict)
+    """Per pixel: work per sample of its last check."""
+    spent: float = 0.0
+    """Work of every check so far."""
     planned: list[tuple[int, int]] = field(default_factory=list)
     """The pixels of the last plan."""
     need: int = 0
     """Samples per part each of them needs."""
+    rate: float = 1.0
+    """The render's mean work per pixel sample at the last plan (1 without its work)."""
 
-    def plan(self, parts: np.ndarray, spp: int) -> SpotCheck | None:
+    def plan(self, parts: np.ndarray, spp: int, work: float | None = None) -> SpotCheck | None:
         """The checks to render for a render of ``spp`` samples per pixel whose parts are
-        ``parts`` ((PARTS, H, W, 3)), or None when none is needed or affordable."""
+        ``parts`` ((PARTS, H, W, 3)) and whose work so far is ``work`` (None: count samples),
+        or None when none is needed or affordable."""
         need = max(1, SPOT_CHECK_FACTOR * spp // PARTS)
-        budget = int(SPOT_CHECK_SHARE * spp * self.pixels) - self.spent
+        self.rate = work / (spp * self.pixels) if work else 1.0
+        budget = SPOT_CHECK_SHARE * spp * self.pixels * self.rate - self.spent
         chosen, starts = [], []
         for y, x in pixels_to_check(parts, CANDIDATES):
             key = (int(y), int(x))
             have = self.counts.get(key, 0)
-            cost = PARTS * max(0, need - have)
-            if cost > budget:
+            cost = PARTS * max(0, need - have) * self._rate(key)
+            if cost <= budget:  # top it up to ``need``
+                budget -= cost
+                starts.append(have)
+            elif have > 0:  # keep the samples it has: fewer, but as independent
+                starts.append(need)
+            else:
                 continue
-            budget -= cost
             chosen.append(key)
-            starts.append(have)
             if len(chosen) == SPOT_CHECKS:
                 break
         self.planned, self.need = chosen, need
@@ -152,16 +169,28 @@ class SpotCheckLedger:
             np.array([need - starts[i] for i in todo], dtype=np.int64),
         )
 
-    def add(self, request: SpotCheck, pixels: np.ndarray, parts: np.ndarray) -> None:
+    def _rate(self, key: tuple[int, int]) -> float:
+        """The work per sample a check of pixel ``key`` is priced at."""
+        return self.rates.get(key, self.rate)
+
+    def add(
+        self,
+        request: SpotCheck,
+        pixels: np.ndarray,
+        parts: np.ndarray,
+        work: np.ndarray | None = None,
+    ) -> None:
         """Add the checks of ``request`` that were rendered: ``pixels`` ((P', 2), a subset of
-        the request's) and their (PARTS, P', 3) parts. The others lack samples, so
-        :meth:`checks` leaves them out. All or nothing: checks that are not the request's
-        are refused (ValueError) before anything is added."""
+        the request's), their (PARTS, P', 3) parts and (P',) work (None: priced as planned).
+        The others lack samples, so :meth:`checks` leaves them out. All or nothing: checks that
+        are not the request's are refused (ValueError) before anything is added."""
         rows = {(int(y), int(x)): i for i, (y, x) in enumerate(request.pixels)}
         keys = [(int(y), int(x)) for y, x in np.asarray(pixels, dtype=np.int64).reshape(-1, 2)]
         parts = np.asarray(parts, dtype=np.float64)
         if parts.shape != (PARTS, len(keys), 3):
             raise ValueError(f"expected spot-check parts of shape {(PARTS, len(keys), 3)}")
+        if work is not None and np.shape(work) != (len(keys),):
+            raise ValueError(f"expected the work of {len(keys)} spot checks")
         if len(set(keys)) != len(keys) or any(k not in rows for k in keys):
             raise ValueError("spot checks must be distinct pixels of the request")
         for key in keys:
@@ -171,11 +200,16 @@ class SpotCheckLedger:
             n = int(request.part_spp[rows[key]])
             self.sums[key] = self.sums.get(key, np.zeros((PARTS, 3))) + parts[:, j] * n
             self.counts[key] = self.counts.get(key, 0) + n
-            self.spent += PARTS * n
+            if work is None:
+                self.spent += PARTS * n * self._rate(key)
+            else:
+                self.spent += float(work[j])
+                self.rates[key] = float(work[j]) / (PARTS * n)
 
     def checks(self) -> SpotChecks | None:
-        """The checks of the last plan's pixels that have all their samples (None: none)."""
-        keys = [k for k in self.planned if self.counts.get(k, 0) >= self.need]
+        """The checks of the last plan's pixels that have samples (None: none): ``need`` per
+        part, or fewer where the budget or a failed tracer left a pixel's older check."""
+        keys = [k for k in self.planned if self.counts.get(k, 0) > 0]
         if not keys:
             return None
         parts = np.stack([self.sums[k] / self.counts[k] for k in keys], axis=1)

@@ -304,11 +304,11 @@ class Tracer:
         part_start: np.ndarray,
         snapshot: bytes | None = None,
         scene: str = DEFAULT_SCENE,
-    ) -> "np.ndarray | OutOfSync":
+    ) -> "tuple[np.ndarray, np.ndarray] | OutOfSync":
         """Spot checks of ``pixels`` ((P, 2) y, x) of ``frame`` at ``version`` of ``scene``:
         samples ``[part_start, part_start + part_spp)`` of each part's stream, per pixel
-        (:func:`tracer.spot_check.render_spot_checks`: (PARTS, P, 3)), reaching the version
-        first like a render call."""
+        (:func:`tracer.spot_check.render_spot_checks`: (PARTS, P, 3) parts and (P,) work),
+        reaching the version first like a render call."""
         problem = self._reach(scene, version, commits, snapshot)
         if problem is not None:
             return self._out_of_sync(scene, frame, version, problem)

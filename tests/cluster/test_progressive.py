@@ -285,13 +285,14 @@ def test_spot_checks_through_the_coordinator(coordinator):
     )
     pixels = np.array([[1, 2], [10, 20], [5, 5], [23, 31], [0, 0]])
     request = SpotCheck(pixels, np.array([0, 4, 0, 8, 2]), np.array([4, 4, 2, 2, 1]))
-    got_pixels, got = coordinator.render_spot_checks(request)
+    got_pixels, got, work = coordinator.render_spot_checks(request)
     order = [pixels.tolist().index(p) for p in got_pixels.tolist()]
     assert sorted(order) == list(range(len(pixels)))
-    expected = render_spot_checks(
+    expected, expected_work = render_spot_checks(
         compile_scene(graph.state), got_pixels, request.part_spp[order], request.part_start[order]
     )
     np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(work, expected_work)
 
 
 def test_a_failed_share_drops_only_its_pixels(coordinator):
@@ -299,5 +300,5 @@ def test_a_failed_share_drops_only_its_pixels(coordinator):
     fails; the first pixel still comes back, checked."""
     camera = coordinator.graph.state.camera
     request = SpotCheck(np.array([[3, 4], [camera.height, 0]]), np.array([0, 0]), np.array([2, 2]))
-    got_pixels, got = coordinator.render_spot_checks(request)
-    assert got_pixels.tolist() == [[3, 4]] and got.shape == (PARTS, 1, 3)
+    got_pixels, got, work = coordinator.render_spot_checks(request)
+    assert got_pixels.tolist() == [[3, 4]] and got.shape == (PARTS, 1, 3) and work.shape == (1,)

@@ -31,11 +31,14 @@ def view(cornell):
 
 def test_parts_are_the_pixels_render_on_their_streams(view):
     """Part k of pixel (y, x) is samples [start, start + spp) of that pixel with part k's
-    seed, bit for bit, for one sample range per pixel."""
+    seed, bit for bit, for one sample range per pixel; a pixel's work is its parts' work."""
     scene, camera, settings = view
     part_spp, part_start = np.array([4, 2, 3]), np.array([0, 5, 1])
-    parts = render_spot_checks(scene, PIXELS, part_spp, part_start, camera, settings, threads=1)
+    parts, work = render_spot_checks(
+        scene, PIXELS, part_spp, part_start, camera, settings, threads=1
+    )
     assert parts.shape == (PARTS, len(PIXELS), 3)
+    expected_work = np.zeros(len(PIXELS), np.int64)
     for k in range(PARTS):
         stream = spot_check_settings(settings, k)
         assert stream.seed == settings.seed ^ SEED_BIT ^ (k << 58)
@@ -44,14 +47,17 @@ def test_parts_are_the_pixels_render_on_their_streams(view):
             one = override(stream, spp=int(part_spp[i]))
             run = render_pixels(scene, p, p + 1, camera, one, 0, int(part_start[i]))
             np.testing.assert_array_equal(parts[k, i], run.rgb[0])
+            expected_work[i] += run.cost[0]
+    np.testing.assert_array_equal(work, expected_work)
+    assert (work > 0).all()
 
 
 def test_a_top_up_continues_the_samples(view):
     """Samples [0, 4) and [4, 8) of a part average to samples [0, 8) (float32 rounding)."""
     scene, camera, settings = view
-    first = render_spot_checks(scene, LIT, 4, 0, camera, settings)
-    then = render_spot_checks(scene, LIT, 4, 4, camera, settings)
-    whole = render_spot_checks(scene, LIT, 8, 0, camera, settings)
+    first = render_spot_checks(scene, LIT, 4, 0, camera, settings)[0]
+    then = render_spot_checks(scene, LIT, 4, 4, camera, settings)[0]
+    whole = render_spot_checks(scene, LIT, 8, 0, camera, settings)[0]
     np.testing.assert_allclose((first + then) / 2, whole, rtol=1e-5, atol=1e-7)
 
 
@@ -59,7 +65,7 @@ def test_the_streams_are_independent(view):
     """The render's own samples of lit pixels differ from every part's, and parts differ
     from each other."""
     scene, camera, settings = view
-    checked = render_spot_checks(scene, LIT, 16, 0, camera, settings)
+    checked = render_spot_checks(scene, LIT, 16, 0, camera, settings)[0]
     for i, (y, x) in enumerate(LIT):
         p = y * WIDTH + x
         own = render_pixels(scene, p, p + 1, camera, override(settings, spp=16)).rgb[0]
@@ -73,7 +79,8 @@ def test_threads_change_nothing(view):
     scene, camera, settings = view
     one = render_spot_checks(scene, PIXELS, 2, 0, camera, settings, threads=1)
     two = render_spot_checks(scene, PIXELS, 2, 0, camera, settings, threads=2)
-    np.testing.assert_array_equal(one, two)
+    np.testing.assert_array_equal(one[0], two[0])
+    np.testing.assert_array_equal(one[1], two[1])
 
 
 @pytest.mark.parametrize(
@@ -146,3 +153,25 @@ def test_the_ledger_drops_what_was_not_rendered():
     assert ledger.spent == 0 and not ledger.counts and ledger.checks() is None
     ledger.add(request, request.pixels[1:], np.ones((PARTS, 1, 3)))
     assert ledger.checks().pixels.tolist() == request.pixels[1:].tolist()
+
+
+def test_the_ledger_prices_checks_by_work():
+    """With the render's work given (10 per pixel sample), checks are priced at that mean
+    until their own work is known: two spots at 4 spp. They turn out to cost three times the
+    mean, so at 8 spp their top-ups do not fit what is left of the budget; they keep their
+    older checks (the estimate still gets them). Counting samples instead, the same checks
+    would be topped up."""
+    images = lit_parts(np.random.default_rng(4))
+    rate, pixels = 10.0, 32 * 32
+    ledger = SpotCheckLedger(pixels)
+    first = ledger.plan(images, 4, work=4 * pixels * rate)
+    assert len(first.pixels) == 2
+    costly = np.full(2, 3 * rate * first.samples / 2)
+    ledger.add(first, first.pixels, np.ones((PARTS, 2, 3)), costly)
+    assert ledger.spent == costly.sum()
+    assert ledger.plan(images, 8, work=8 * pixels * rate) is None
+    assert ledger.checks().pixels.tolist() == first.pixels.tolist()
+    by_samples = SpotCheckLedger(pixels)
+    request = by_samples.plan(images, 4)
+    by_samples.add(request, request.pixels, np.ones((PARTS, 2, 3)))
+    assert by_samples.plan(images, 8).pixels.tolist() == first.pixels.tolist()
