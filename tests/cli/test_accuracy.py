@@ -159,10 +159,11 @@ def test_effect_stages_add_accuracy(study):
 
 @pytest.mark.parametrize("name", ["cornell-box", "studio", "nefertiti"])
 def test_estimate_is_calibrated(name, study, tmp_path):
-    """The error estimated from independent parts against the true error (reference noise
-    removed), at 4 to 64 spp: within +-30% wherever it gives an estimate, and it gives one
-    from 16 spp on (these scenes have no light smaller than a pixel). Our own references here
-    take 4096 spp."""
+    """The error estimated from independent parts and their spot checks against the true
+    error (reference noise removed), at 4 to 64 spp: within +-30% and given at every level.
+    Our own references here take 4096 spp. (Scenes
+    with a sun smaller than a pixel are calibrated at the study's size, docs/accuracy.md; at
+    1-4k pixels the checks' share pays for 1-2 pixels, too few for them.)"""
     options, result, _ = study
     if name == "cornell-box":
         records = result["calibration"]
@@ -177,8 +178,8 @@ def test_estimate_is_calibrated(name, study, tmp_path):
         records = calibration(scene, camera, ref, floor, options, lambda n: None)
     assert [r["spp"] for r in records] == [4, 8, 16, 32, 64]
     ratios = {r["spp"]: r["estimated"] / r["true"] for r in records if r["estimated"] is not None}
-    assert all(abs(ratio - 1) <= 0.3 for ratio in ratios.values()), ratios
-    assert {16, 32, 64} <= set(ratios), ratios
+    assert all(abs(ratio - 1) <= 0.3 for ratio in ratios.values()), (ratios, records)
+    assert set(ratios) == {4, 8, 16, 32, 64}, ratios
 
 
 def test_time_to_interpolates_and_extrapolates():
