@@ -198,7 +198,10 @@ def estimate_rel_mse(
     variance, ``(m - r)^2 - v`` is an unbiased estimate of ``(m - mu)^2``, this render's
     squared error there, and ``r^2 + 3 v`` in the denominator removes the first-order bias of
     ``1 / r^2`` (delta method), large where a pixel's value comes from rare samples. Checked
-    pixels no longer count as ambiguous.
+    pixels no longer count as ambiguous, unless the check itself is carried by one of its
+    parts (its mean above ``OUTLIER`` times its median, or ``sqrt(eps)``): a path so rare that
+    the check saw it once or not at all tells neither reading, so the pixel keeps its reading
+    from the render's parts.
 
     It estimates the error of this render (which fireflies it caught), not the mean error of
     renders like it; docs/accuracy.md measures both.
@@ -207,9 +210,12 @@ def estimate_rel_mse(
     mean, _, _, terms, as_light = _readings(stack, eps)
     excess = (terms - as_light).sum(axis=2)
     if checks is not None and len(checks.pixels):
-        ys, xs = np.asarray(checks.pixels).T
         samples = np.asarray(checks.parts, dtype=np.float64)
         value = samples.mean(axis=0)
+        # A check carried by one of its parts has not resolved its pixel either.
+        settled = (value <= OUTLIER * np.maximum(np.median(samples, axis=0), eps**0.5)).all(1)
+        ys, xs = np.asarray(checks.pixels)[settled].T
+        value, samples = value[settled], samples[:, settled]
         variance = samples.var(axis=0, ddof=1) / samples.shape[0]
         squared = value * value + 3.0 * variance  # E[1 / r^2] ~ (1 + 3 v / mu^2) / mu^2
         terms[ys, xs] = ((mean[ys, xs] - value) ** 2 - variance) / (squared + eps)

@@ -303,3 +303,18 @@ def test_spot_checks_are_validated():
         SpotChecks(np.zeros((2, 2), int), np.zeros((PARTS, 3, 3)))
     with pytest.raises(ValueError, match="parts"):
         SpotChecks(np.zeros((2, 2), int), np.zeros((1, 2, 3)))
+
+
+def test_a_check_carried_by_one_part_settles_nothing():
+    """A check that saw the pixel's rare bright path in one of its parts only (a path rarer
+    than the check's samples) cannot tell the pixel's value either: the pixel keeps its
+    reading from the render's parts, and the estimate stays not estimable, as without it."""
+    rng = np.random.default_rng(13)
+    images = parts(rng, np.full(SHAPE, 0.5), 0.05 * 0.5)
+    images[:, 20, 30] = 0.0
+    images[2, 20, 30] = 40.0
+    pixels = np.array([[20, 30]])
+    carried = SpotChecks(pixels, np.array([0.5, 0.5, 0.5, 30.0])[:, None, None] * np.ones(3))
+    assert estimate_rel_mse(images, checks=carried) is None
+    settled = SpotChecks(pixels, np.array([0.5, 0.6, 0.45, 0.55])[:, None, None] * np.ones(3))
+    assert estimate_rel_mse(images, checks=settled) is not None
