@@ -36,3 +36,20 @@ def ray_session():
     yield connection
     if connection.started:
         disconnect()
+
+
+@pytest.fixture
+def spot_check_calls(monkeypatch):
+    """The pixel count of every ``Coordinator.render_spot_checks`` call of this process during
+    the test (the coordinator of an in-process CLI render or service job), in order."""
+    from cluster.coordinator import Coordinator
+
+    calls = []
+    check = Coordinator.render_spot_checks
+
+    def counted(self, request, *args, **kwargs):
+        calls.append(len(request.pixels))
+        return check(self, request, *args, **kwargs)
+
+    monkeypatch.setattr(Coordinator, "render_spot_checks", counted)
+    return calls

@@ -204,25 +204,15 @@ def test_progressive_jobs(client):
     assert job["status"] == "done" and job["frames"][0]["spp"] >= 2
 
 
-def test_progressive_jobs_spot_check(client, monkeypatch):
+def test_progressive_jobs_spot_check(client, spot_check_calls):
     """From 512 pixels on, a progressive job's waves end with spot checks through the
     coordinator before their estimate."""
-    from cluster.coordinator import Coordinator
-
-    calls = []
-    check = Coordinator.render_spot_checks
-
-    def counted(self, request, *args, **kwargs):
-        calls.append(len(request.pixels))
-        return check(self, request, *args, **kwargs)
-
-    monkeypatch.setattr(Coordinator, "render_spot_checks", counted)
     scene = upload_tiny(client)
     body = {"scene_id": scene["id"], "target_error": 0.2, "width": 32, "height": 24}
     job = wait_job(client, client.post("/v1/jobs", json=body).json()["id"])
     assert job["status"] == "done", job
     assert job["frames"][0]["error_estimate"] <= 0.2
-    assert calls and all(n == 1 for n in calls)
+    assert spot_check_calls and set(spot_check_calls) == {1}
 
 
 def test_events_progress_and_cancel(client):

@@ -50,26 +50,16 @@ def test_target_error(capsys, tmp_path, tiny_scene_file):
     np.testing.assert_allclose(read_image(npy), expected, rtol=1e-5, atol=1e-6)
 
 
-def test_larger_images_are_spot_checked(capsys, tmp_path, tiny_scene_file, monkeypatch):
+def test_larger_images_are_spot_checked(capsys, tmp_path, tiny_scene_file, spot_check_calls):
     """From 512 pixels on, waves spot-check pixels (here 32x24: one at a time) through the
     coordinator before their estimate; the metadata says how many the last estimate used."""
-    from cluster.coordinator import Coordinator
-
-    calls = []
-    check = Coordinator.render_spot_checks
-
-    def counted(self, request, *args, **kwargs):
-        calls.append(len(request.pixels))
-        return check(self, request, *args, **kwargs)
-
-    monkeypatch.setattr(Coordinator, "render_spot_checks", counted)
     out = tmp_path / "out.png"
     code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--width", 32,
                        "--height", 24, "--target-error", 0.1, "-q")  # fmt: skip
     assert code == 0, err
     progressive = png_metadata(out)["progressive"]
     assert progressive["stopped"] == "target_error" and progressive["spot_checks"] <= 1
-    assert calls and set(calls) == {1}
+    assert spot_check_calls and set(spot_check_calls) == {1}
 
 
 def test_time_budget_and_max_spp(capsys, tmp_path, tiny_scene_file):
