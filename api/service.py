@@ -205,17 +205,21 @@ class JobRun:
                 part, spec.number, camera, render, self.graph
             )
             p.add_spot_checks(pixels, parts, time.monotonic() - t0, work)
-            return self._complete(spec, p.image, p.spp, p.error, p.elapsed) if p.done else None
-        self.inflight = coordinator.submit_frame(
-            spec.number, camera, fmt.override(render, spp=part.spp), part.sample_start, self.graph
-        )
-        try:
-            frame = coordinator.wait_frame(self.inflight)
-        finally:
-            self.inflight = None
-        self.last_frame = frame
-        p.add_part(frame.rgb, time.monotonic() - t0, float(frame.cost.sum()))
-        self.samples_done += camera.width * camera.height * part.spp
+        else:
+            self.inflight = coordinator.submit_frame(
+                spec.number,
+                camera,
+                fmt.override(render, spp=part.spp),
+                part.sample_start,
+                self.graph,
+            )
+            try:
+                frame = coordinator.wait_frame(self.inflight)
+            finally:
+                self.inflight = None
+            self.last_frame = frame
+            p.add_part(frame.rgb, time.monotonic() - t0, float(frame.cost.sum()))
+            self.samples_done += camera.width * camera.height * part.spp
         if not p.done:
             return None
         return self._complete(spec, p.image, p.spp, p.error, p.elapsed)

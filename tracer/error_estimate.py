@@ -147,8 +147,8 @@ def pixels_to_check(parts: Images, count: int, eps: float = REL_EPSILON) -> np.n
     low = np.minimum(np.sort(stack, axis=0)[1], floor)
     gap = (variance / (low * low + eps) - as_light).sum(axis=2)
     order = np.argsort(gap, axis=None, kind="stable")[::-1][: max(0, count)]
-    order = order[gap.flat[order] >= CHECK_GAP * terms.sum()]
-    order = order[gap.flat[order] > 0.0]
+    ranked = gap.flat[order]
+    order = order[(ranked > 0.0) & (ranked >= CHECK_GAP * terms.sum())]
     return np.stack(np.unravel_index(order, gap.shape), axis=1).astype(np.int64)
 
 

@@ -132,8 +132,6 @@ class SpotCheckLedger:
     """Work of every check so far."""
     planned: list[tuple[int, int]] = field(default_factory=list)
     """The pixels of the last plan."""
-    need: int = 0
-    """Samples per part each of them needs."""
     rate: float = 1.0
     """The render's mean work per pixel sample at the last plan (1 without its work)."""
 
@@ -159,7 +157,7 @@ class SpotCheckLedger:
             chosen.append(key)
             if len(chosen) == SPOT_CHECKS:
                 break
-        self.planned, self.need = chosen, need
+        self.planned = chosen
         todo = [i for i, start in enumerate(starts) if start < need]
         if not todo:
             return None
@@ -207,8 +205,8 @@ class SpotCheckLedger:
                 self.rates[key] = float(work[j]) / (PARTS * n)
 
     def checks(self) -> SpotChecks | None:
-        """The checks of the last plan's pixels that have samples (None: none): ``need`` per
-        part, or fewer where the budget or a failed tracer left a pixel's older check."""
+        """The checks of the last plan's pixels that have samples (None: none): all the plan
+        asked for, or fewer where the budget or a failed tracer left a pixel's older check."""
         keys = [k for k in self.planned if self.counts.get(k, 0) > 0]
         if not keys:
             return None
