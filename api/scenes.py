@@ -42,6 +42,7 @@ from api.errors import ApiError
 from api.settings import Settings
 from api.store import Store
 from cluster.scene_graph import SceneGraph
+from tracer import portable
 from tracer.commit_codec import decode_commit, decode_state, encode_commit, encode_state
 from tracer.errors import SceneError
 from tracer.lights import mean_sky_radiance
@@ -281,7 +282,7 @@ def bounds(state: SceneState) -> tuple[list[float], list[float]] | None:
                 for z in (vmin[2], vmax[2])
             ]
         )
-        world = corners @ m[:3, :3].T + m[:3, 3]
+        world = portable.transform_points(corners, m)
         lo = np.minimum(lo, world.min(axis=0))
         hi = np.maximum(hi, world.max(axis=0))
     if not np.isfinite(lo).all():

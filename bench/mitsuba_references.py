@@ -62,6 +62,9 @@ SCENES = {
 MEAN_FILE = "mitsuba_mean.npy"
 VAR_FILE = "mitsuba_var_of_mean.npy"
 RECORD_FILE = "mitsuba.json"
+EXPORT_FILE = "mitsuba_export.xml"
+"""The exported XML the reference was rendered from (the agreement test compares the current
+export with it, numbers within a relative 1e-9: their last digits depend on the CPU)."""
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -148,6 +151,7 @@ def make_reference(mi, name: str, args: argparse.Namespace, export_root: Path) -
     out.mkdir(parents=True, exist_ok=True)
     np.save(out / MEAN_FILE, mean.astype(np.float32))
     np.save(out / VAR_FILE, var_of_mean.astype(np.float32))
+    (out / EXPORT_FILE).write_text(exported.xml)
     height, width = mean.shape[:2]
     record = {
         "scene": relative,

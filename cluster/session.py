@@ -26,6 +26,7 @@ import numpy as np
 
 from cluster.coordinator import Coordinator, Frame
 from cluster.scene_graph import SceneGraph
+from tracer import portable
 from tracer import scene_format as fmt
 
 RESOLUTION_SCALES = (1.0, 0.5, 0.25)
@@ -38,8 +39,8 @@ def camera_motion(a: fmt.Camera, b: fmt.Camera) -> float:
     field of view. 0 for the same view."""
     pa, pb = np.asarray(a.position, float), np.asarray(b.position, float)
     da, db = np.asarray(a.look_at, float) - pa, np.asarray(b.look_at, float) - pb
-    turn = math.atan2(float(np.linalg.norm(np.cross(da, db))), float(np.dot(da, db)))
-    shift = float(np.linalg.norm(pb - pa)) / max(float(np.linalg.norm(da)), 1e-300)
+    turn = math.atan2(portable.norm(portable.cross(da, db)), portable.dot(da, db))
+    shift = portable.norm(pb - pa) / max(portable.norm(da), 1e-300)
     zoom = abs(math.radians(b.vfov_deg) - math.radians(a.vfov_deg))
     size = (b.width, b.height) != (a.width, a.height)
     return math.inf if size else (turn + shift + zoom) / math.radians(a.vfov_deg)

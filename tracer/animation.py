@@ -15,6 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 import pydantic
 
+from tracer import portable
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 from tracer.scene_model import Animation, CameraKey, NodeKey, SceneState
@@ -26,7 +27,7 @@ Quaternion = tuple[float, float, float, float]
 
 def _normalised(vector) -> np.ndarray:
     vector = np.asarray(vector, dtype=np.float64)
-    return vector / np.linalg.norm(vector)
+    return vector / portable.norm(vector)
 
 
 def rotation_matrix(q: Sequence[float]) -> np.ndarray:
@@ -54,7 +55,7 @@ def trs_matrix(
 def slerp(a: Sequence[float], b: Sequence[float], u: float) -> Quaternion:
     """The unit quaternion a fraction ``u`` of the way from ``a`` to ``b`` on the shorter arc."""
     a, b = _normalised(a), _normalised(b)
-    dot = float(a @ b)
+    dot = portable.dot(a, b)
     if dot < 0.0:  # q and -q are the same rotation: go the short way round
         b, dot = -b, -dot
     if dot > 0.9995:  # nearly parallel: sin(theta) ~ 0, a normalised lerp is exact enough
@@ -222,10 +223,10 @@ def matrix_to_trs(matrix) -> tuple[tuple[float, ...], Quaternion, tuple[float, .
     scale = np.linalg.norm(linear, axis=0)
     if not (scale > 0.0).all():
         raise SceneError("matrix_to_trs: the matrix is singular")
-    if np.linalg.det(linear) < 0.0:
+    if portable.det3(linear) < 0.0:
         scale[0] = -scale[0]
     rotation = linear / scale
-    if not np.allclose(rotation.T @ rotation, np.eye(3), rtol=0.0, atol=1e-9):
+    if not np.allclose(portable.matmul(rotation.T, rotation), np.eye(3), rtol=0.0, atol=1e-9):
         raise SceneError("matrix_to_trs: the matrix shears, so it is not T @ R @ S")
     q = _quaternion_from_rotation(rotation)
     return (

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from tracer import portable
 from tracer.jit import jit, jit_inline
 from tracer.rng import uniform2
 from tracer.sampling import square_to_uniform_disk_concentric
@@ -41,17 +42,17 @@ def camera_array(
     distance defaults to the distance from ``position`` to ``look_at``."""
     position = np.asarray(position, dtype=np.float64)
     forward = np.asarray(look_at, dtype=np.float64) - position
-    norm = np.linalg.norm(forward)
+    norm = portable.norm(forward)
     if not norm > 0.0:
         raise ValueError("camera look_at must differ from its position")
     norm_forward = float(norm)
     forward /= norm
-    right = np.cross(forward, np.asarray(up, dtype=np.float64))
-    norm = np.linalg.norm(right)
+    right = portable.cross(forward, np.asarray(up, dtype=np.float64))
+    norm = portable.norm(right)
     if not norm > 1e-12:
         raise ValueError("camera up must not be parallel to the viewing direction")
     right /= norm
-    true_up = np.cross(right, forward)
+    true_up = portable.cross(right, forward)
     tan_half = math.tan(math.radians(vfov_deg) * 0.5)
     if focus_distance is None:
         focus_distance = norm_forward

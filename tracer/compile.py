@@ -26,7 +26,7 @@ from fractions import Fraction
 import numpy as np
 
 from tracer import bvh as bvh_module
-from tracer import bvh_update, config
+from tracer import bvh_update, config, portable
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 from tracer.jit import jit
@@ -330,10 +330,10 @@ def static_accel(state: SceneState, signature: tuple, material_index: dict) -> M
     for node, mesh, _ in signature:
         matrix = state.world_transform(node.id)
         with np.errstate(all="ignore"):
-            world = mesh.vertices @ matrix[:3, :3].T + matrix[:3, 3]
+            world = portable.transform_points(mesh.vertices, matrix)
         if not np.isfinite(world).all():
             raise SceneError(f"{node.name or node.id}: its transform moves vertices to infinity")
-        faces = mesh.faces[:, ::-1] if np.linalg.det(matrix[:3, :3]) < 0.0 else mesh.faces
+        faces = mesh.faces[:, ::-1] if portable.det3(matrix) < 0.0 else mesh.faces
         parts.append(world[faces])
         uvs.append(None if mesh.uvs is None else uv_rows(mesh.uvs, faces))
         materials.append(np.full(faces.shape[0], material_index[node.material], np.int32))
@@ -431,8 +431,7 @@ def _world_box(accel: MeshAccel, xform: np.ndarray) -> tuple[np.ndarray, np.ndar
         [[x, y, z] for x in (accel.lo[0], accel.hi[0]) for y in (accel.lo[1], accel.hi[1])
          for z in (accel.lo[2], accel.hi[2])]
     )  # fmt: skip
-    m = xform.reshape(3, 4)
-    world = corners @ m[:, :3].T + m[:, 3]
+    world = portable.transform_points(corners, xform.reshape(3, 4))
     return world.min(axis=0), world.max(axis=0)
 
 
@@ -518,12 +517,12 @@ def compile_scene(
         if node.kind != "static":
             shift = np.eye(4)
             shift[:3, 3] = meshes[node.mesh].center
-            matrix = to_render @ state.world_transform(node.id) @ shift
+            matrix = portable.chain(to_render, state.world_transform(node.id), shift)
             inst.append(
                 (node.id, node.mesh, pool_of[node.mesh], matrix, material_index[node.material])
             )
     xform = np.array([to_rows(m) for _, _, _, m, _ in inst])
-    inv = np.array([to_rows(np.linalg.inv(m)) for _, _, _, m, _ in inst])
+    inv = np.array([to_rows(portable.affine_inverse(m)) for _, _, _, m, _ in inst])
     inst_pool = np.array([p for _, _, p, _, _ in inst], dtype=np.int32)
     inst_root = np.array([pools[p].node_offset[key] for _, key, p, _, _ in inst], np.int32)
     inst_material = np.array([m for *_, m in inst], dtype=np.int32)
@@ -543,7 +542,7 @@ def compile_scene(
         rows = np.arange(first, first + meshes[key].bvh.tri_verts.shape[0])
         mats = pools[p].tri_material[rows] if m < 0 else np.full(rows.shape[0], m, np.int32)
         light_inputs.append((k, pools[p].tri_verts, rows, pools[p].tri_prim[rows], mats, xform[k]))
-    radius = 0.5 * float(np.linalg.norm(hi.max(axis=0).astype(np.float64) - lo.min(axis=0)))
+    radius = 0.5 * portable.norm(hi.max(axis=0).astype(np.float64) - lo.min(axis=0))
     lights = build_light_table(
         light_inputs, materials.emission, state.lights, state.sky, origin, max(radius, 1e-30)
     )

@@ -8,12 +8,13 @@ float array (H, W, 3)), linear RGB radiance, row 0 at the top. Every problem rai
 :class:`SceneError` naming the file.
 """
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from tracer import config
+from tracer import config, portable
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 
@@ -36,7 +37,7 @@ class EnvironmentMap:
     def mean_radiance(self) -> tuple[float, float, float]:
         """Radiance averaged over the sphere (solid-angle weighted), scale included."""
         h = self.image.shape[0]
-        edges = np.cos(np.pi * np.arange(h + 1) / h)
+        edges = portable.elementwise(math.cos, np.pi * np.arange(h + 1) / h)
         row_weight = (edges[:-1] - edges[1:]) / 2.0  # solid angle of each row / 4 pi
         per_row = self.image.astype(np.float64).mean(axis=1)
         mean = (row_weight[:, None] * per_row).sum(axis=0) * self.model.scale

@@ -22,6 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tracer import portable
 from tracer.jit import jit
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -60,9 +61,11 @@ def sampling_tables(image: np.ndarray, scale: float = 1.0, by_luminance: bool = 
     """
     scaled = (image.astype(np.float64) * scale).astype(np.float32)
     h, w = scaled.shape[:2]
-    sin_theta = np.sin(np.pi * (np.arange(h) + 0.5) / h)
+    sin_theta = portable.elementwise(math.sin, np.pi * (np.arange(h) + 0.5) / h)
     if by_luminance:
-        weights = (scaled.astype(np.float64) @ LUMINANCE) * sin_theta[:, None]
+        rgb = scaled.astype(np.float64)
+        luminance = rgb[..., 0] * LUMINANCE[0] + rgb[..., 1] * LUMINANCE[1]
+        weights = (luminance + rgb[..., 2] * LUMINANCE[2]) * sin_theta[:, None]
     else:
         weights = np.broadcast_to(sin_theta[:, None], (h, w))
     cols = _cdf(weights)

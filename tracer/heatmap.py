@@ -7,9 +7,11 @@ the image's maximum, so a pixel's colour depends on that pixel alone and heat ma
 scenes and frames compare directly.
 """
 
+import math
+
 import numpy as np
 
-from tracer import config
+from tracer import config, portable
 
 RAMP = np.array(
     [
@@ -26,7 +28,7 @@ RAMP = np.array(
 def cost_heatmap(cost: np.ndarray, spp: int) -> np.ndarray:
     """float32 (..., 3) colours for per-pixel costs ``cost`` (int, any shape) of ``spp`` samples."""
     per_sample = np.asarray(cost, dtype=np.float64) / spp
-    t = np.log2(1.0 + per_sample) / np.log2(1.0 + config.COST_HEATMAP_MAX)
+    t = portable.elementwise(math.log2, 1.0 + per_sample) / math.log2(1.0 + config.COST_HEATMAP_MAX)
     t = np.clip(t, 0.0, 1.0) * (len(RAMP) - 1)
     i = np.minimum(t.astype(np.int64), len(RAMP) - 2)
     f = (t - i)[..., None]

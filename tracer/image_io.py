@@ -5,20 +5,33 @@ place only when complete, so a failed or interrupted render never leaves a parti
 """
 
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from tracer.jit import jit
+
 FORMATS = (".png", ".exr", ".npy")
+
+
+@jit
+def _srgb_codes(x, out):
+    """sRGB codes of linear values in [0, 1] (the C library's ``pow``, not numpy's per-CPU SIMD)."""
+    for i in range(x.size):
+        v = x[i]
+        s = 12.92 * v if v <= 0.0031308 else 1.055 * math.pow(v, 1.0 / 2.4) - 0.055
+        out[i] = np.uint8(np.rint(s * 255.0))
 
 
 def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
     """Clamp linear RGB to [0, 1] and encode with the sRGB transfer curve as uint8."""
-    x = np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0)
-    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-    return np.round(srgb * 255.0).astype(np.uint8)
+    x = np.clip(np.nan_to_num(np.asarray(rgb, np.float64), nan=0.0), 0.0, 1.0)
+    out = np.empty(x.shape, np.uint8)
+    _srgb_codes(np.ascontiguousarray(x).reshape(-1), out.reshape(-1))
+    return out
 
 
 def check_output_path(path: str | Path) -> Path:

@@ -24,6 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tracer import portable
 from tracer import scene_format as fmt
 from tracer.environment import EnvironmentMap
 from tracer.environment_light import (
@@ -141,8 +142,8 @@ def world_areas(tri_verts: np.ndarray, rows: np.ndarray, xform: np.ndarray) -> n
     """World-space areas of triangles ``rows`` under the 12-value transform ``xform``."""
     v = tri_verts[rows].astype(np.float64).reshape(-1, 3, 3)
     linear = xform.reshape(3, 4)[:, :3]
-    e1 = (v[:, 1] - v[:, 0]) @ linear.T
-    e2 = (v[:, 2] - v[:, 0]) @ linear.T
+    e1 = portable.transform_vectors(v[:, 1] - v[:, 0], linear)
+    e2 = portable.transform_vectors(v[:, 2] - v[:, 0], linear)
     return 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
 
 
@@ -254,7 +255,7 @@ def light_row(light: fmt.Light, origin: np.ndarray, radius: float) -> tuple[int,
     if isinstance(light, fmt.PointLight):
         return POINT, row, 4.0 * _mean(light.intensity)
     axis = np.subtract(light.look_at, light.position).astype(np.float64)
-    row[AXIS : AXIS + 3] = axis / np.linalg.norm(axis)
+    row[AXIS : AXIS + 3] = axis / portable.norm(axis)
     cos_outer = math.cos(math.radians(light.cone_angle_deg))
     cos_inner = math.cos(math.radians(light.cone_angle_deg - light.falloff_deg))
     row[COS_OUTER] = cos_outer

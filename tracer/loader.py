@@ -16,6 +16,7 @@ import numpy as np
 import pydantic
 import trimesh
 
+from tracer import portable
 from tracer import scene_format as fmt
 from tracer.animation import (
     camera_at,
@@ -442,7 +443,7 @@ def scene_from_mesh_file(path: Path) -> SceneState:
     corners = []
     for i, (name, transform, mesh_key, material_key) in enumerate(model.parts):
         nodes[i] = Node(i, name, None, transform, "static", mesh_key, material_key)
-        v = model.meshes[mesh_key].vertices @ transform[:3, :3].T + transform[:3, 3]
+        v = portable.transform_points(model.meshes[mesh_key].vertices, transform)
         corners += [v.min(axis=0), v.max(axis=0)]
     lo = np.min(corners, axis=0)
     hi = np.max(corners, axis=0)
@@ -463,8 +464,8 @@ def scene_from_mesh_file(path: Path) -> SceneState:
 def framing_camera(lo: np.ndarray, hi: np.ndarray, vfov_deg: float = 40.0) -> fmt.Camera:
     """A camera in front of (+z) and a little above the bounds, seeing all of them."""
     center = 0.5 * (lo + hi)
-    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-30)
-    direction = np.array([0.0, 0.35, 1.0]) / np.linalg.norm([0.0, 0.35, 1.0])
+    radius = max(0.5 * portable.norm(hi - lo), 1e-30)
+    direction = portable.normalized([0.0, 0.35, 1.0])
     distance = 1.1 * radius / math.sin(math.radians(vfov_deg) * 0.5)
     return fmt.Camera(
         position=tuple(center + distance * direction),
@@ -481,12 +482,12 @@ def with_default_light(state: SceneState, lo: np.ndarray, hi: np.ndarray) -> Sce
     """The state plus a square area light above the camera side of the bounds, facing their
     centre (a node and a material both named ``default-light``)."""
     center = 0.5 * (lo + hi)
-    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-30)
-    toward = np.array([0.3, 1.0, 0.6]) / np.linalg.norm([0.3, 1.0, 0.6])
+    radius = max(0.5 * portable.norm(hi - lo), 1e-30)
+    toward = portable.normalized([0.3, 1.0, 0.6])
     normal = -toward  # the rectangle faces +z; rotate +z onto the normal
     z = np.array([0.0, 0.0, 1.0])
-    angle = math.acos(float(np.clip(np.dot(z, normal), -1.0, 1.0)))
-    matrix = trimesh.transformations.rotation_matrix(angle, np.cross(z, normal))
+    angle = math.acos(min(max(portable.dot(z, normal), -1.0), 1.0))
+    matrix = trimesh.transformations.rotation_matrix(angle, portable.cross(z, normal))
     matrix[:3, 3] = center + 2.0 * radius * toward
     node_id = max(state.nodes) + 1
     light = Node(

@@ -16,6 +16,7 @@ import numpy as np
 import pydantic
 import trimesh
 
+from tracer import portable
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 from tracer.scene_model import Mesh, frozen_array, make_mesh
@@ -57,13 +58,26 @@ def file_parts(path: Path, loaded) -> list[Part]:
     parts = []
     if isinstance(loaded, trimesh.Scene):
         for node in loaded.graph.nodes_geometry:
-            matrix, geometry_name = loaded.graph[node]
+            geometry_name = loaded.graph.transforms.node_data[node].get("geometry")
             geometry = loaded.geometry[geometry_name]
             if isinstance(geometry, trimesh.Trimesh):
                 parts.append(
-                    Part(str(node), np.asarray(matrix, np.float64), geometry_name, geometry)
+                    Part(str(node), _file_matrix(loaded.graph, node), geometry_name, geometry)
                 )
     return parts
+
+
+def _file_matrix(graph, node) -> np.ndarray:
+    """The node's matrix in the file's base frame: the matrices on the path from the base frame,
+    multiplied in order with ``tracer.portable`` (trimesh's own product goes through BLAS)."""
+    parents = graph.transforms.parents
+    edges = graph.transforms.edge_data
+    path = []
+    while node != graph.base_frame and node in parents:
+        parent = parents[node]
+        path.append(edges[(parent, node)].get("matrix", np.eye(4)))
+        node = parent
+    return portable.chain(np.eye(4), *reversed(path))
 
 
 def mesh_uvs(geometry: trimesh.Trimesh) -> np.ndarray | None:
@@ -86,12 +100,14 @@ def load_mesh_file(path: Path) -> Mesh:
     vertices, faces, uvs = [], [], []
     count = 0
     for part in parts:
-        baked = trimesh.Trimesh(part.mesh.vertices, part.mesh.faces, process=False)
-        baked.apply_transform(part.matrix)
-        vertices.append(baked.vertices)
-        faces.append(np.asarray(baked.faces, dtype=np.int64) + count)
+        baked = portable.transform_points(part.mesh.vertices, part.matrix)
+        part_faces = np.asarray(part.mesh.faces, dtype=np.int64)
+        if portable.det3(part.matrix) < 0.0:  # a mirror: front faces stay front faces
+            part_faces = part_faces[:, ::-1]
+        vertices.append(baked)
+        faces.append(part_faces + count)
         uvs.append(mesh_uvs(part.mesh))
-        count += len(baked.vertices)
+        count += len(baked)
     uv = None if any(u is None for u in uvs) else np.concatenate(uvs)
     return make_mesh(np.concatenate(vertices), np.concatenate(faces), path.name, uv)
 

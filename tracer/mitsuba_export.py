@@ -20,6 +20,7 @@ from typing import Literal
 import numpy as np
 import trimesh
 
+from tracer import portable
 from tracer import scene_format as fmt
 from tracer.bsdf import ETA, SMOOTH_ALPHA, K
 from tracer.environment import EnvironmentMap
@@ -237,11 +238,10 @@ def _check_fields(model, label: str) -> None:
 
 def _frame(normal: np.ndarray) -> np.ndarray:
     """Two unit vectors completing ``normal`` to a right-handed frame, as columns x, y, z."""
-    z = normal / np.linalg.norm(normal)
+    z = portable.normalized(normal)
     helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
+    x = portable.normalized(portable.cross(helper, z))
+    return np.column_stack([x, portable.cross(z, x), z])
 
 
 def sky_radiance(sky: fmt.Sky | EnvironmentMap, direction) -> np.ndarray:
@@ -276,7 +276,7 @@ def environment_radiance(sky: EnvironmentMap, direction) -> np.ndarray:
     """The map's radiance from unit ``direction``: the pixel ``tracer.environment_light`` looks
     up (nearest pixel, after turning the direction into the map's frame)."""
     h, w = sky.image.shape[:2]
-    d = _environment_frame(sky.model.rotation) @ np.asarray(direction, dtype=np.float64)
+    d = portable.transform_vectors(direction, _environment_frame(sky.model.rotation))
     v = math.atan2(math.hypot(d[0], d[2]), d[1]) / math.pi
     u = math.atan2(d[0], -d[2]) / (2.0 * math.pi) + 0.5
     i = min(max(int(v * h), 0), h - 1)
@@ -299,7 +299,7 @@ def environment_to_world(rotation_deg: float) -> np.ndarray:
     ``to_world = (F R)^-1``, ``R`` the world -> map turn."""
     flip = np.diag([-1.0, 1.0, -1.0])
     matrix = np.eye(4)
-    matrix[:3, :3] = np.linalg.inv(flip @ _environment_frame(rotation_deg))
+    matrix[:3, :3] = portable.matmul(flip, _environment_frame(rotation_deg)).T  # a rotation
     return matrix
 
 
@@ -432,7 +432,7 @@ class _Writer:
         corners = np.concatenate([m.vertices for m in self.meshes])
         self.lo, self.hi = corners.min(axis=0), corners.max(axis=0)
         self.center = 0.5 * (self.lo + self.hi)
-        self.radius = max(0.5 * float(np.linalg.norm(self.hi - self.lo)), 1e-6)
+        self.radius = max(0.5 * portable.norm(self.hi - self.lo), 1e-6)
         for name in sorted({m.material for m in self.meshes}):
             material = state.materials[name]
             _check_fields(material, f"material {name!r}")
@@ -449,7 +449,7 @@ class _Writer:
 
         root = ET.Element("scene", version="3.0.0")
         self.root = root
-        reach = float(np.linalg.norm(np.subtract(state.camera.position, self.center)))
+        reach = portable.norm(np.subtract(state.camera.position, self.center))
         self.far = 10.0 * (self.radius + reach)
         self._integrator(root)
         bsdf_ids = self._materials(root)
@@ -498,7 +498,7 @@ class _Writer:
         _float(sensor, "far_clip", self.far)
         if lens:
             forward = np.subtract(camera.look_at, camera.position)
-            focus = camera.focus_distance or float(np.linalg.norm(forward))
+            focus = camera.focus_distance or portable.norm(forward)
             _float(sensor, "aperture_radius", camera.aperture_radius)
             _float(sensor, "focus_distance", focus)
         transform = _child(sensor, "transform", name="to_world")

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracer import config, effects
+from tracer import config, effects, portable
 from tracer import scene_format as fmt
 from tracer.camera import camera_array
 from tracer.compile import CompiledScene
@@ -234,7 +234,7 @@ def render_pixels(
 
 def scene_diagonal(scene: CompiledScene) -> float:
     """Length of the diagonal of the scene's bounding box (world units)."""
-    return float(np.linalg.norm(np.subtract(scene.stats.bounds_max, scene.stats.bounds_min)))
+    return portable.norm(np.subtract(scene.stats.bounds_max, scene.stats.bounds_min))
 
 
 def render_image(

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from tracer import config
+from tracer import config, portable
 from tracer import scene_format as fmt
 from tracer.environment import EnvironmentMap, check_image
 from tracer.errors import SceneError
@@ -129,7 +129,7 @@ def _check_transforms(nodes) -> None:
             raise SceneError(f"node {node_id}: transform must be a float64 4x4 matrix")
     stack = np.stack(transforms)
     with np.errstate(all="ignore"):  # overflow shows up as a non-finite determinant
-        dets = np.linalg.det(stack[:, :3, :3])
+        dets = portable.det3(stack)
     bad = ~np.isfinite(stack).all(axis=(1, 2)) | (stack[:, 3] != [0.0, 0.0, 0.0, 1.0]).any(axis=1)
     bad |= ~np.isfinite(dets) | (dets == 0.0)
     if bad.any():

@@ -5,6 +5,7 @@ guide is ``docs/scene-format.md``. Every model forbids unknown keys and non-fini
 typo or a NaN is an error at load time rather than a surprise in the image.
 """
 
+import math
 from typing import Annotated, Literal
 
 import numpy as np
@@ -19,7 +20,7 @@ from pydantic import (
     model_validator,
 )
 
-from tracer import config
+from tracer import config, portable
 
 FORMAT = "tilerender/1"
 
@@ -59,7 +60,7 @@ class Transform(Strict):
         if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
             raise ValueError("matrix must be affine: its last row must be [0, 0, 0, 1]")
         with np.errstate(all="ignore"):  # an overflowing determinant is refused just below
-            det = np.linalg.det(m[:3, :3])
+            det = portable.det3(m)
         if not np.isfinite(det) or det == 0.0:
             raise ValueError("transform is singular (zero scale or a degenerate matrix)")
         return self
@@ -69,21 +70,21 @@ class Transform(Strict):
         if self.matrix is not None:
             return np.array(self.matrix, dtype=np.float64)
         scale = np.broadcast_to(np.asarray(self.scale, dtype=np.float64), (3,))
-        rx, ry, rz = np.radians(self.rotate)
+        rx, ry, rz = (math.radians(a) for a in self.rotate)
         cx, sx, cy, sy, cz, sz = (
-            np.cos(rx),
-            np.sin(rx),
-            np.cos(ry),
-            np.sin(ry),
-            np.cos(rz),
-            np.sin(rz),
+            math.cos(rx),
+            math.sin(rx),
+            math.cos(ry),
+            math.sin(ry),
+            math.cos(rz),
+            math.sin(rz),
         )
         rot_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
         rot_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
         rot_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
         m = np.eye(4)
         with np.errstate(all="ignore"):  # huge scales overflow to inf: refused as singular
-            m[:3, :3] = rot_z @ rot_y @ rot_x @ np.diag(scale)
+            m[:3, :3] = portable.chain(rot_z, rot_y, rot_x, np.diag(scale))
         m[:3, 3] = self.translate
         return m
 
@@ -329,9 +330,9 @@ class Camera(Strict):
         if self.width * self.height > config.MAX_PIXELS:
             raise ValueError(f"width * height must be at most {config.MAX_PIXELS} pixels")
         forward = np.subtract(self.look_at, self.position)
-        if not np.linalg.norm(forward) > 0.0:
+        if not portable.norm(forward) > 0.0:
             raise ValueError("look_at must differ from position")
-        if not np.linalg.norm(np.cross(forward / np.linalg.norm(forward), self.up)) > 1e-9:
+        if not portable.norm(portable.cross(portable.normalized(forward), self.up)) > 1e-9:
             raise ValueError("up must not be parallel to the viewing direction")
         return self
 
@@ -452,7 +453,7 @@ Sky = Annotated[
 
 def _unit_direction(value):
     v = np.asarray(value, dtype=np.float64)
-    norm = np.linalg.norm(v)
+    norm = portable.norm(v)
     if not norm > 0.0 or not np.isfinite(norm):
         raise ValueError("a direction must be a non-zero finite vector")
     return tuple(float(c) for c in v / norm)
@@ -483,7 +484,7 @@ class SpotLight(Strict):
 
     @model_validator(mode="after")
     def _check(self) -> "SpotLight":
-        if not np.linalg.norm(np.subtract(self.look_at, self.position)) > 0.0:
+        if not portable.norm(np.subtract(self.look_at, self.position)) > 0.0:
             raise ValueError("look_at must differ from position")
         if self.falloff_deg > self.cone_angle_deg:
             raise ValueError("falloff_deg must not exceed cone_angle_deg")
@@ -554,7 +555,7 @@ class ObjectKeyframe(Strict):
         if largest == 0.0:
             raise ValueError("rotation must be a non-zero quaternion (w, x, y, z)")
         q = q / largest  # no overflow in the norm
-        return tuple(float(c) for c in q / np.linalg.norm(q))
+        return tuple(float(c) for c in q / portable.norm(q))
 
     @field_validator("scale")
     @classmethod

@@ -17,6 +17,7 @@ from typing import Literal
 
 import numpy as np
 
+from tracer import portable
 from tracer import scene_format as fmt
 from tracer.environment import EnvironmentMap
 from tracer.errors import SceneError
@@ -151,7 +152,7 @@ class SceneState:
         matrix = self.nodes[node_id].transform
         parent = self.nodes[node_id].parent
         while parent is not None:
-            matrix = self.nodes[parent].transform @ matrix
+            matrix = portable.matmul(self.nodes[parent].transform, matrix)
             parent = self.nodes[parent].parent
         return matrix
 
@@ -166,8 +167,8 @@ class SceneState:
         for node in self.geometry_nodes():
             matrix = self.world_transform(node.id)
             mesh = self.meshes[node.mesh]
-            vertices = mesh.vertices @ matrix[:3, :3].T + matrix[:3, 3]
-            faces = mesh.faces[:, ::-1] if np.linalg.det(matrix[:3, :3]) < 0.0 else mesh.faces
+            vertices = portable.transform_points(mesh.vertices, matrix)
+            faces = mesh.faces[:, ::-1] if portable.det3(matrix) < 0.0 else mesh.faces
             result.append(WorldMesh(node.id, node.name, vertices, faces, node.material))
         return result
 

@@ -9,13 +9,14 @@ array of linear RGB texels with a row of ``(offset, width, height, wrap)`` per t
 [0, 1] either repeated or clamped to the edge texels. docs/materials.md states the conventions.
 """
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from tracer import config
+from tracer import config, portable
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
 from tracer.jit import jit_inline
@@ -33,7 +34,8 @@ fraction left to tile with."""
 def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     """Linear values (float32) of 8-bit sRGB-encoded ``values`` (IEC 61966-2-1)."""
     c = np.arange(256, dtype=np.float64) / 255.0
-    table = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+    curve = portable.elementwise(lambda x: math.pow(x, 2.4), (c + 0.055) / 1.055)
+    table = np.where(c <= 0.04045, c / 12.92, curve).astype(np.float32)
     return table[np.asarray(values, dtype=np.uint8)]
 
 

@@ -6,6 +6,7 @@ t2]``. Each instance has one (object -> world) and its inverse (world -> object)
 
 import numpy as np
 
+from tracer import portable
 from tracer.intersect import GAMMA3
 from tracer.jit import jit_inline
 
@@ -55,14 +56,14 @@ def round_trip_bound(matrix: np.ndarray) -> tuple[float, float]:
     """
     m = np.abs(matrix[:3, :3])
     t = np.abs(matrix[:3, 3])
-    inverse = np.linalg.inv(matrix)
+    inverse = portable.affine_inverse(matrix)
     n = np.abs(inverse[:3, :3])
     s = np.abs(inverse[:3, 3])
-    y_per_x = m.sum(axis=1)  # |y| <= y_per_x |x| + t
-    back_per_x = n @ y_per_x  # |inv| |y|
-    back_const = n @ t + s
-    carried_per_x = n @ (GAMMA3 * y_per_x)
-    carried_const = n @ (GAMMA3 * t)
+    y_per_x = m[:, 0] + m[:, 1] + m[:, 2]  # |y| <= y_per_x |x| + t
+    back_per_x = portable.transform_vectors(y_per_x, n)  # |inv| |y|
+    back_const = portable.transform_vectors(t, n) + s
+    carried_per_x = portable.transform_vectors(GAMMA3 * y_per_x, n)
+    carried_const = portable.transform_vectors(GAMMA3 * t, n)
     c1 = float(np.max(GAMMA3 * back_per_x + (1.0 + GAMMA3) * carried_per_x))
     c0 = float(np.max(GAMMA3 * back_const + (1.0 + GAMMA3) * carried_const))
     return 2.0 * c1, 2.0 * c0  # a factor two covers the rounding of the bound itself

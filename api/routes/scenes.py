@@ -22,6 +22,7 @@ from api.models import (
     errors,
 )
 from api.scenes import SceneEntry, extract_bundle, find_entry, safe_relative
+from tracer import portable
 from tracer import scene_format as fmt
 from tracer.loader import MESH_SUFFIXES
 
@@ -270,15 +271,14 @@ def pixel_ray(camera: fmt.Camera, x: float, y: float, width: int, height: int):
     way tracer.camera builds it."""
     position = np.asarray(camera.position, np.float64)
     forward = np.asarray(camera.look_at, np.float64) - position
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(camera.up, np.float64))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
+    forward /= portable.norm(forward)
+    right = portable.normalized(portable.cross(forward, np.asarray(camera.up, np.float64)))
+    up = portable.cross(right, forward)
     tan_half = math.tan(math.radians(camera.vfov_deg) * 0.5)
     sx = (2.0 * x / width - 1.0) * tan_half * (width / height)
     sy = (1.0 - 2.0 * y / height) * tan_half
     direction = forward + sx * right + sy * up
-    return position, direction / np.linalg.norm(direction)
+    return position, portable.normalized(direction)
 
 
 @router.post("/{scene_id}/query", response_model=QueryHit, responses=errors(503, 504))
@@ -288,7 +288,7 @@ async def query_scene(scene_id: str, body: QueryRequest, ctx: Ctx) -> QueryHit:
     if body.origin is not None:
         origin = np.asarray(body.origin, np.float64)
         direction = np.asarray(body.direction, np.float64)
-        norm = float(np.linalg.norm(direction))
+        norm = portable.norm(direction)
         if not (norm > 0 and math.isfinite(norm)):
             raise ApiError(422, "direction: must be a finite, non-zero vector")
         direction = direction / norm
