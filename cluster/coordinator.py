@@ -540,13 +540,21 @@ class Coordinator:
         slot.last_done = now
 
     def add_tracers(
-        self, n: int = 1, cpus: float | None = None, wait: bool = True, delay: float = 0.0
+        self,
+        n: int = 1,
+        cpus: float | None = None,
+        wait: bool = True,
+        delay: float = 0.0,
+        *,
+        options: dict | None = None,
     ) -> list[str]:
         """Start ``n`` more tracers (``cpus`` each, default as the last one started); they get
         work from the next frame scheduled after they answer. ``wait``: return only once they
-        are ready. ``delay`` is the test-only render delay."""
+        are ready. ``delay`` is the test-only render delay. ``options``: more Ray actor options
+        for these tracers (e.g. a ``runtime_env``), over ``scheduling_strategy="SPREAD"``."""
         cpus = cpus or self._default_cpus
-        slots = [self._start(cpus, {"scheduling_strategy": "SPREAD"}, delay) for _ in range(n)]
+        options = {"scheduling_strategy": "SPREAD", **(options or {})}
+        slots = [self._start(cpus, options, delay) for _ in range(n)]
         if wait:
             self._wait_started(slots, self.start_timeout, require_all=True)
         return [s.id for s in slots]

@@ -53,3 +53,17 @@ def spot_check_calls(monkeypatch):
 
     monkeypatch.setattr(Coordinator, "render_spot_checks", counted)
     return calls
+
+
+@pytest.fixture(scope="session")
+def numba_target_cache(tmp_path_factory):
+    """A kernel cache base directory per numba CPU target (``NUMBA_CPU_NAME``), made once per
+    session, so the tests that emulate the same CPU compile its kernels once."""
+    caches = {}
+
+    def get(target: str):
+        if target not in caches:
+            caches[target] = tmp_path_factory.mktemp(f"numba-{target}")
+        return caches[target]
+
+    return get

@@ -3,7 +3,7 @@
 A number derived in float64 (a norm, a product of matrices) can differ in its last bits from one
 CPU to another; its text then differs although the document means the same. Elements, their
 order, attribute names and non-numeric values must match exactly; attribute values that are
-lists of numbers must match within a relative tolerance.
+lists of numbers must match within a tolerance relative to the largest number of the list.
 """
 
 import math
