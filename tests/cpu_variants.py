@@ -143,3 +143,10 @@ def matrix() -> list[Variant]:
         variants.append(Variant("numpy-baseline", {"NPY_DISABLE_CPU_FEATURES": disabled}))
     variants += [v for v in (epyc(), baseline()) if v is not None]
     return variants
+
+
+def other_cpu() -> Variant:
+    """The emulated CPU least like this host: an EPYC where the host has AVX-512 (its numba
+    target, OpenBLAS kernels and numpy dispatch all differ), else the old baseline."""
+    variant = epyc() if "avx512f" in host_flags() else None
+    return variant or baseline()

@@ -19,7 +19,7 @@ import ray
 
 from cluster.coordinator import Coordinator
 from cluster.scene_graph import SceneGraph
-from tests.cpu_variants import baseline, epyc
+from tests.cpu_variants import other_cpu
 from tests.harsh_scene import harsh_scene
 from tests.tracer.test_cross_cpu import (
     HIT_FIELDS,
@@ -48,7 +48,7 @@ def test_tracer_on_another_cpu_renders_the_same_frame(
     """One of two tracers runs as an emulated other CPU and renders half of the frame; the
     assembled frame equals the host tracer's frame alone, every bit, and both replicas answer
     ray queries with the same bits."""
-    variant = epyc() or baseline()
+    variant = other_cpu()
     if all(os.environ.get(k) == v for k, v in variant.env.items()):
         pytest.skip(f"this process already runs as the emulated {variant.name}")
     cache = numba_target_cache(variant.cache_key)
