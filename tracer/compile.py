@@ -1,9 +1,11 @@
 """Compile a scene state into the arrays kernels read (``tracer.scene_arrays``).
 
 Two levels (Reiter ch. 3): every mesh gets a BVH in its own object space, and a top-level BVH
-is built over the instances that place meshes in the world. Static nodes are baked into one
-world-space mesh (static geometry never moves, so one tree serves it best); rigid, deformable
-and dynamic nodes are instances of their meshes, which many nodes may share.
+is built over the instances that place meshes in the world. Static nodes are baked into
+world-space meshes (static geometry never moves, so one tree serves it best), one per cluster of
+nodes near enough to share an origin without losing float32 precision
+(``tracer.static_clusters``); rigid, deformable and dynamic nodes are instances of their meshes,
+which many nodes may share.
 
 Compiling is incremental: given the previous compiled scene, every mesh BVH, pool and table
 whose inputs are the very same objects is reused (states share unchanged objects), a mesh whose
@@ -19,9 +21,7 @@ is an error.
 """
 
 import dataclasses
-import math
 from dataclasses import dataclass
-from fractions import Fraction
 
 import numpy as np
 
@@ -35,8 +35,10 @@ from tracer.materials import MaterialTable, material_table
 from tracer.scene_arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
 from tracer.scene_check import check_textures
 from tracer.scene_model import Mesh, SceneState
+from tracer.static_clusters import cluster_nodes, snapped_center
 from tracer.textures import TextureTable, texture_table, uv_rows
 from tracer.transforms import round_trip_bound, to_rows
+from tracer.zero_area import all_zero_area, zero_area_mask
 
 STATIC_KEY = "\0static"
 """Key of the baked static mesh among the compiled meshes (not a valid user mesh name)."""
@@ -119,8 +121,10 @@ class CompiledScene:
     meshes: dict[str, MeshAccel]
     pools: tuple[Pool, Pool]
     static_signature: tuple
+    static_clusters: int
+    """How many baked static meshes there are (``static_key(k)`` for k below it)."""
     instance_nodes: np.ndarray
-    """int32 (I,): the scene node of each instance (-1 for the baked static mesh)."""
+    """int32 (I,): the scene node of each instance (-1 - k for baked static cluster k)."""
     stats: SceneStats
 
     @property
@@ -143,66 +147,6 @@ class CompiledScene:
     def nbytes(self) -> int:
         """Bytes of every array the kernels read."""
         return self.arrays.nbytes
-
-
-def render_space_origin(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The centre of the bounds, snapped to a power-of-two grid as coarse as their extent.
-
-    Snapping leaves a mesh that already sits around its origin exactly where it is, and moves a
-    distant one by an amount that float64 represents exactly at its scale.
-    """
-    center = 0.5 * (lo + hi)
-    extent = float(np.max(hi - lo))
-    if not extent > 0.0:
-        return np.zeros(3)
-    grid = 2.0 ** math.floor(math.log2(extent))
-    return np.round(center / grid) * grid
-
-
-@jit
-def _zero_area_screen(tri_verts):
-    """Per triangle: a repeated vertex (degenerate outright), and whether float64 cannot rule
-    out collinearity (a cross product tiny against the edges)."""
-    n = tri_verts.shape[0]
-    repeated = np.zeros(n, np.bool_)
-    candidate = np.zeros(n, np.bool_)
-    for i in range(n):
-        p = tri_verts[i]
-        same01 = p[0] == p[3] and p[1] == p[4] and p[2] == p[5]
-        same12 = p[3] == p[6] and p[4] == p[7] and p[5] == p[8]
-        same20 = p[6] == p[0] and p[7] == p[1] and p[8] == p[2]
-        if same01 or same12 or same20:
-            repeated[i] = True
-            continue
-        a0 = np.float64(p[3]) - np.float64(p[0])
-        a1 = np.float64(p[4]) - np.float64(p[1])
-        a2 = np.float64(p[5]) - np.float64(p[2])
-        b0 = np.float64(p[6]) - np.float64(p[0])
-        b1 = np.float64(p[7]) - np.float64(p[1])
-        b2 = np.float64(p[8]) - np.float64(p[2])
-        size = max(abs(a1 * b2 - a2 * b1), max(abs(a2 * b0 - a0 * b2), abs(a0 * b1 - a1 * b0)))
-        scale = max(abs(a0), max(abs(a1), abs(a2))) * max(abs(b0), max(abs(b1), abs(b2)))
-        candidate[i] = size <= 1e-9 * scale
-    return repeated, candidate
-
-
-def zero_area_mask(tri_verts: np.ndarray) -> np.ndarray:
-    """Triangles whose float32 vertices are exactly collinear (or repeated).
-
-    Triangles with a repeated vertex are degenerate outright. For the rest, float64 screens out
-    the clearly non-degenerate (a cross product far from zero), and every remaining candidate is
-    decided exactly, with rational arithmetic on the float32 values: float64 alone is not exact
-    when one triangle mixes tiny and ordinary coordinates.
-    """
-    mask, candidate = _zero_area_screen(np.ascontiguousarray(tri_verts, dtype=np.float32))
-    for i in np.flatnonzero(candidate):
-        p = [[Fraction(float(x)) for x in vertex] for vertex in tri_verts[i].reshape(3, 3)]
-        a = [p[1][k] - p[0][k] for k in range(3)]
-        b = [p[2][k] - p[0][k] for k in range(3)]
-        mask[i] = (
-            a[1] * b[2] == a[2] * b[1] and a[2] * b[0] == a[0] * b[2] and a[0] * b[1] == a[1] * b[0]
-        )
-    return mask
 
 
 @jit
@@ -235,7 +179,7 @@ def _centered_triangles(vertices: np.ndarray, faces: np.ndarray, label: str):
     lo, hi = _bounds(vertices)
     if not (np.isfinite(hi - lo).all() and float(np.max(hi - lo)) < FLOAT32_SAFE_EXTENT):
         raise SceneError(f"{label}: the mesh is too large for float32 coordinates")
-    center = render_space_origin(lo, hi)
+    center = snapped_center(lo, hi)
     return center, _gather_centered(vertices, faces, center)
 
 
@@ -243,7 +187,8 @@ def _accel(source, tri_verts, center, zero_area, per_triangle_material, uv, labe
     """A mesh's BVH; ``uv`` float32 (T, 6) in the mesh's triangle order, or None."""
     valid = np.flatnonzero(~zero_area).astype(np.int32)
     if valid.size == 0:
-        raise SceneError(f"{label}: every triangle of the mesh has zero area")
+        given = source.vertices[source.faces] if isinstance(source, Mesh) else tri_verts
+        raise SceneError(all_zero_area(label, np.asarray(given, np.float64).reshape(-1, 3, 3)))
     accel = bvh_module.to_traversal(bvh_module.build(tri_verts, valid), tri_verts)
     material = per_triangle_material[accel.tri_prim].astype(np.int32)
     lo, hi = _bounds(accel.tri_verts.reshape(-1, 3))
@@ -322,44 +267,74 @@ def _same_signature(a: tuple, b: tuple) -> bool:
     )
 
 
-def static_accel(state: SceneState, signature: tuple, material_index: dict) -> MeshAccel | None:
-    """All static geometry baked into one world-space mesh (triangles in node order)."""
+def static_key(cluster: int) -> str:
+    """Key of baked static cluster ``cluster`` among the compiled meshes (0: ``STATIC_KEY``)."""
+    return STATIC_KEY if cluster == 0 else f"{STATIC_KEY}:{cluster}"
+
+
+def _world_triangles(node, mesh: Mesh, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """float64 (F, 3, 3) world triangles of a static node, and its faces (mirrors reversed)."""
+    with np.errstate(all="ignore"):
+        world = portable.transform_points(mesh.vertices, matrix)
+    if not np.isfinite(world).all():
+        raise SceneError(f"{node.name or node.id}: its transform moves vertices to infinity")
+    faces = mesh.faces[:, ::-1] if portable.det3(matrix) < 0.0 else mesh.faces
+    return world[faces], faces
+
+
+def static_accels(state: SceneState, signature: tuple, material_index: dict) -> list[MeshAccel]:
+    """Static geometry baked into world-space meshes, one per cluster of nearby nodes
+    (``tracer.static_clusters``), the cluster with the most triangles first; triangles in node
+    order within each."""
     if not signature:
-        return None
+        return []
+    triangles = [_world_triangles(node, mesh, state.world_transform(node.id))
+                 for node, mesh, _ in signature]  # fmt: skip
+    lo = np.array([t.reshape(-1, 3).min(axis=0) for t, _ in triangles])
+    hi = np.array([t.reshape(-1, 3).max(axis=0) for t, _ in triangles])
+    clusters = cluster_nodes(lo, hi)
+    counts = [sum(triangles[i][1].shape[0] for i in c) for c in clusters]
+    clusters = [clusters[k] for k in sorted(range(len(clusters)), key=lambda k: (-counts[k], k))]
+    return [
+        _bake([signature[i] for i in c], [triangles[i] for i in c], material_index, k)
+        for k, c in enumerate(clusters)
+    ]
+
+
+def _bake(signature: tuple, triangles: list, material_index: dict, cluster: int) -> MeshAccel:
+    """One cluster of static nodes baked into one mesh around its own origin."""
     parts, materials, owners, locals_, uvs = [], [], [], [], []
-    for node, mesh, _ in signature:
-        matrix = state.world_transform(node.id)
-        with np.errstate(all="ignore"):
-            world = portable.transform_points(mesh.vertices, matrix)
-        if not np.isfinite(world).all():
-            raise SceneError(f"{node.name or node.id}: its transform moves vertices to infinity")
-        faces = mesh.faces[:, ::-1] if portable.det3(matrix) < 0.0 else mesh.faces
-        parts.append(world[faces])
+    for (node, mesh, _), (world, faces) in zip(signature, triangles, strict=True):
+        parts.append(world)
         uvs.append(None if mesh.uvs is None else uv_rows(mesh.uvs, faces))
         materials.append(np.full(faces.shape[0], material_index[node.material], np.int32))
         owners.append(np.full(faces.shape[0], node.id, np.int64))
         locals_.append(np.arange(faces.shape[0], dtype=np.int64))
-    triangles = np.concatenate(parts)
-    lo = triangles.reshape(-1, 3).min(axis=0)
-    hi = triangles.reshape(-1, 3).max(axis=0)
+    world = np.concatenate(parts)
+    lo = world.reshape(-1, 3).min(axis=0)
+    hi = world.reshape(-1, 3).max(axis=0)
     if not (np.isfinite(hi - lo).all() and float(np.max(hi - lo)) < FLOAT32_SAFE_EXTENT):
-        raise SceneError("the static scene is too large for float32 coordinates")
-    center = render_space_origin(lo, hi)
-    tri_verts = (triangles - center).reshape(-1, 9).astype(np.float32)
+        names = ", ".join(str(node.name or node.id) for node, _, _ in signature[:3])
+        raise SceneError(f"static objects ({names}...) span too much for float32 coordinates")
+    center = snapped_center(lo, hi)
+    tri_verts = (world - center).reshape(-1, 9).astype(np.float32)
     zero_area = zero_area_mask(tri_verts)
-    owner = np.concatenate(owners)
-    for node, _, _ in signature:
-        mine = owner == node.id
-        if zero_area[mine].all():
-            raise SceneError(f"{node.name or node.id}: every triangle of the mesh has zero area")
+    counted = np.concatenate([[0], np.cumsum(zero_area)])
+    ends = np.cumsum([p.shape[0] for p in parts])
+    for (node, mesh, _), part, end in zip(signature, parts, ends, strict=True):
+        if counted[end] - counted[end - part.shape[0]] == part.shape[0]:
+            raise SceneError(
+                all_zero_area(str(node.name or node.id), part, mesh.vertices[mesh.faces])
+            )
     uv = None
     if any(rows is not None for rows in uvs):
         rows = [np.zeros((p.shape[0], 6), np.float32) if r is None else r
                 for p, r in zip(parts, uvs, strict=True)]  # fmt: skip
         uv = np.concatenate(rows)
-    accel = _accel(signature, tri_verts, center, zero_area, np.concatenate(materials), uv, "scene")
-    owner_table = np.stack([owner, np.concatenate(locals_)], axis=1).astype(np.int32)
-    return dataclasses.replace(accel, owner=owner_table)
+    label = "scene" if cluster == 0 else f"static cluster {cluster}"
+    accel = _accel(signature, tri_verts, center, zero_area, np.concatenate(materials), uv, label)
+    owner = np.stack([np.concatenate(owners), np.concatenate(locals_)], axis=1)
+    return dataclasses.replace(accel, owner=owner.astype(np.int32))
 
 
 @jit
@@ -478,24 +453,20 @@ def compile_scene(
     )
     old_meshes = previous.meshes if previous is not None else {}
 
-    # Mesh BVHs: the baked static mesh, then every mesh a non-static node uses.
+    # Mesh BVHs: the baked static clusters, then every mesh a non-static node uses.
     signature = static_signature(state)
-    meshes: dict[str, MeshAccel] = {}
     if previous is not None and _same_signature(previous.static_signature, signature):
-        if STATIC_KEY in old_meshes:
-            meshes[STATIC_KEY] = old_meshes[STATIC_KEY]
+        baked = [old_meshes[static_key(k)] for k in range(previous.static_clusters)]
     else:
-        baked = static_accel(state, signature, material_index)
-        if baked is not None:
-            meshes[STATIC_KEY] = baked
+        baked = static_accels(state, signature, material_index)
+    meshes: dict[str, MeshAccel] = {static_key(k): accel for k, accel in enumerate(baked)}
     pool_of = _pool_of(state)
     for key in sorted(pool_of):
         meshes[key] = mesh_accel(key, state.meshes[key], old_meshes.get(key), rebuild_threshold)
 
     # Pools.
-    stable_keys = ([STATIC_KEY] if STATIC_KEY in meshes else []) + sorted(
-        k for k, p in pool_of.items() if p == STABLE_POOL
-    )
+    stable_keys = [static_key(k) for k in range(len(baked))]
+    stable_keys += sorted(k for k, p in pool_of.items() if p == STABLE_POOL)
     volatile_keys = sorted(k for k, p in pool_of.items() if p == VOLATILE_POOL)
     old_pools = previous.pools if previous is not None else (None, None)
     pools = (
@@ -503,16 +474,19 @@ def compile_scene(
         make_pool(tuple(volatile_keys), tuple(meshes[k] for k in volatile_keys), old_pools[1]),
     )
 
-    # Render space is world space moved by ``origin``, the static mesh's centre: the static mesh
-    # then needs no transform at all, and kernels skip it.
-    origin = meshes[STATIC_KEY].center if STATIC_KEY in meshes else np.zeros(3)
+    # Render space is world space moved by ``origin``, the first static cluster's centre: that
+    # cluster then needs no transform at all, and kernels skip it.
+    origin = baked[0].center if baked else np.zeros(3)
     to_render = np.eye(4)
     to_render[:3, 3] = -origin
 
-    # Instances: the static mesh first, then non-static geometry nodes in id order.
+    # Instances: the static clusters first (node -1 - k), then non-static geometry nodes in id
+    # order. A cluster's translation is exact: both centres lie on power-of-two grids.
     inst = []  # (node id, key, pool, object -> render 4x4, material index)
-    if STATIC_KEY in meshes:
-        inst.append((-1, STATIC_KEY, STABLE_POOL, np.eye(4), -1))
+    for k, accel in enumerate(baked):
+        shift = np.eye(4)
+        shift[:3, 3] = accel.center - origin
+        inst.append((-1 - k, static_key(k), STABLE_POOL, shift, -1))
     for node in state.geometry_nodes():
         if node.kind != "static":
             shift = np.eye(4)
@@ -532,6 +506,15 @@ def compile_scene(
     # The top level, over the instances' world boxes.
     boxes = [_world_box(meshes[key], xform[k]) for k, (_, key, _, _, _) in enumerate(inst)]
     lo, hi = _outward_float32(np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes]))
+    beyond = ~(
+        np.all(np.abs(lo) < FLOAT32_SAFE_EXTENT, axis=1)
+        & np.all(np.abs(hi) < FLOAT32_SAFE_EXTENT, axis=1)
+    )
+    if beyond.any():
+        k = int(np.argmax(beyond))
+        node = state.nodes.get(inst[k][0])
+        label = "static objects" if node is None else str(node.name or node.id)
+        raise SceneError(f"{label}: placed beyond the range of float32 bounds (|x| >= 1e30)")
     top = bvh_module.build_boxes(lo, hi, np.arange(len(inst), dtype=np.int32))
     tlas = bvh_module.to_traversal(top, np.zeros((len(inst), 9), np.float32))
 
@@ -596,6 +579,7 @@ def compile_scene(
         meshes=meshes,
         pools=pools,
         static_signature=signature,
+        static_clusters=len(baked),
         instance_nodes=np.array([n for n, *_ in inst], dtype=np.int32),
         stats=stats,
     )

@@ -30,6 +30,7 @@ from tracer.borrow import borrowed
 from tracer.bsdf import (
     DIELECTRIC,
     DIFFUSE,
+    IOR,
     SIGMA,
     bsdf_eval,
     bsdf_is_delta,
@@ -203,6 +204,7 @@ def path_kernel(materials: bool, lights: bool):
                     o, d = camera_sample_ray(camera, width, height, x, y, key)
                     L = (0.0, 0.0, 0.0)
                     beta = (1.0, 1.0, 1.0)
+                    eta_scale = 1.0  # the eta^2 that radiance leaving the media gets back
                     p_bsdf_prev = 0.0
                     delta_prev = False
                     depth = 1
@@ -348,14 +350,19 @@ def path_kernel(materials: bool, lights: bool):
                         beta = (beta[0] * weight[0], beta[1] * weight[1], beta[2] * weight[2])
                         if beta[0] == 0.0 and beta[1] == 0.0 and beta[2] == 0.0:
                             break  # nothing more can reach the camera along this path
+                        if kind == DIELECTRIC and dot(wi, n) * dot(wo, n) < 0.0:
+                            eta = param[IOR] if front else 1.0 / param[IOR]
+                            eta_scale *= eta * eta  # refracted: beta carries 1 / eta^2
                         p_bsdf_prev = pdf
                         depth += 1
                         if nee_only and has_lights and depth >= max_depth and not delta_prev:
                             break  # the last vertex's emission would count 0 without MIS
 
-                        # Russian roulette: survive with probability q and divide by it (unbiased).
+                        # Russian roulette: survive with probability q and divide by it
+                        # (unbiased), q from the throughput the path has once out of any glass
+                        # (pbrt-v4's etaScale): inside, beta is low by the 1 / eta^2 of entering.
                         if depth > rr_depth:
-                            q = min(0.95, max_component(beta))
+                            q = min(0.95, max_component(beta) * eta_scale)
                             if uniform(key, dim + 3) >= q:
                                 break
                             beta = (beta[0] / q, beta[1] / q, beta[2] / q)

@@ -9,7 +9,7 @@ import numpy as np
 
 from tracer import config
 from tracer.borrow import borrowed
-from tracer.compile import STATIC_KEY, CompiledScene
+from tracer.compile import CompiledScene, static_key
 from tracer.jit import jit
 from tracer.raycast import check_rays
 from tracer.scene_arrays import borrow_scene
@@ -94,11 +94,12 @@ def scene_hits(
     for pool_index, pool in enumerate(scene.pools):
         mine = hit & (scene.arrays.inst_pool[np.maximum(inst, 0)] == pool_index)
         triangle[mine] = pool.tri_prim[row[mine]]
-    static = hit & (node == -1)
-    if static.any():
-        owner = scene.meshes[STATIC_KEY].owner
-        node[static] = owner[triangle[static], 0]
-        triangle[static] = owner[triangle[static], 1]
+    for k in range(scene.static_clusters):
+        static = hit & (node == -1 - k)
+        if static.any():
+            owner = scene.meshes[static_key(k)].owner
+            node[static] = owner[triangle[static], 0]
+            triangle[static] = owner[triangle[static], 1]
     point[hit] += scene.origin
     names = scene.material_names
     return SceneHits(

@@ -28,10 +28,11 @@ from tests.helpers import (
 )
 from tracer import scene_format as fmt
 from tracer.camera import camera_array, primary_ray
-from tracer.compile import STATIC_KEY, compile_scene, zero_area_mask
+from tracer.compile import STATIC_KEY, compile_scene, static_key
 from tracer.errors import SceneError
 from tracer.loader import DEFAULT_LIGHT, MAX_SCENE_FILE_BYTES, framing_camera, load_scene
 from tracer.render import render_lines
+from tracer.zero_area import zero_area_mask
 
 
 def load_error(path) -> str:
@@ -97,18 +98,24 @@ def test_tiny_scene_renders(tiny_scene_file):
 
 
 def test_render_space_keeps_geometry(tmp_path):
-    """Compilation stores static geometry next to the origin by a power-of-two-friendly offset,
-    but the triangles are the world triangles minus that offset, exactly (for representable
-    data)."""
+    """Compilation stores each cluster of static geometry next to its origin by a
+    power-of-two-friendly offset, but the triangles are the world triangles minus that offset,
+    exactly (for representable data); the cluster's instance adds the offset back exactly."""
     data = tiny_scene()
     data["objects"][1]["transform"] = {"translate": [1024.0, 2048.0, -512.0]}
     path = write_json(tmp_path / "far.json", data)
     loaded = load_scene(path)
     scene = compile_scene(loaded)
-    world = np.concatenate([m.vertices[m.faces].reshape(-1, 9) for m in loaded.world_meshes()])
-    static = scene.meshes[STATIC_KEY].bvh
-    expected = (world[static.tri_prim].reshape(-1, 3, 3) - scene.origin).astype(np.float32)
-    assert np.array_equal(static.tri_verts.reshape(-1, 3, 3), expected)
+    world = {m.node: m.vertices[m.faces] for m in loaded.world_meshes()}
+    assert scene.static_clusters == 2  # the far object is baked on its own
+    for k in range(scene.static_clusters):
+        accel = scene.meshes[static_key(k)]
+        owner = accel.owner[accel.bvh.tri_prim]
+        expected = np.stack([world[node][local] for node, local in owner]) - accel.center
+        assert np.array_equal(accel.bvh.tri_verts.reshape(-1, 3, 3), expected.astype(np.float32))
+        shift = scene.arrays.inst_xform[k].reshape(3, 4)
+        assert np.array_equal(shift[:, :3], np.eye(3))
+        assert np.array_equal(shift[:, 3] + scene.origin, accel.center)
 
 
 # --- the JSON file itself -------------------------------------------------------------------
@@ -259,12 +266,19 @@ def test_transform_to_infinity(tmp_path):
     assert message.startswith("thing: ") and "infinity" in message
 
 
-def test_scene_too_large_for_float32(tmp_path):
-    """A scene whose extent float32 cannot hold is refused."""
+def test_objects_placed_too_far_are_refused_by_name(tmp_path):
+    """An object moved so far that float64 cannot tell its vertices apart is refused with that
+    reason and its name (each far object is baked on its own, so the scene's extent alone is no
+    reason), and so is one beyond what float32 bounds hold."""
     data = tiny_scene()
     data["objects"][0]["transform"] = {"translate": [-1e39, 0, 0]}
     data["objects"][1]["transform"] = {"translate": [1e39, 0, 0]}
-    assert "float32" in load_error(write_json(tmp_path / "scene.json", data))
+    message = load_error(write_json(tmp_path / "scene.json", data))
+    assert "float64 cannot tell its vertices apart" in message and "1e+39" in message
+    data = tiny_scene()
+    data["objects"][1]["transform"] = {"translate": [1e31, 0, 0], "scale": 1e16}
+    message = load_error(write_json(tmp_path / "scene.json", data))
+    assert "beyond the range of float32 bounds" in message
 
 
 # --- mesh file references -------------------------------------------------------------------
