@@ -49,9 +49,10 @@ def matmul(a, b) -> np.ndarray:
     """``a @ b`` for 2-D float arrays (or a stack of them), summed over k in order."""
     a = np.asarray(a, np.float64)
     b = np.asarray(b, np.float64)
-    out = a[..., :, 0:1] * b[..., 0:1, :]
-    for k in range(1, a.shape[-1]):
-        out = out + a[..., :, k : k + 1] * b[..., k : k + 1, :]
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = a[..., :, 0:1] * b[..., 0:1, :]
+        for k in range(1, a.shape[-1]):
+            out = out + a[..., :, k : k + 1] * b[..., k : k + 1, :]
     return out
 
 
@@ -68,17 +69,19 @@ def transform_points(points, matrix) -> np.ndarray:
     matrix."""
     p = np.asarray(points, np.float64)
     m = np.asarray(matrix, np.float64)
-    out = p[..., 0:1] * m[:3, 0] + p[..., 1:2] * m[:3, 1]
-    out = out + p[..., 2:3] * m[:3, 2]
-    return out + m[:3, 3]
+    with np.errstate(over="ignore", invalid="ignore"):  # as BLAS: inf and NaN pass through
+        out = p[..., 0:1] * m[:3, 0] + p[..., 1:2] * m[:3, 1]
+        out = out + p[..., 2:3] * m[:3, 2]
+        return out + m[:3, 3]
 
 
 def transform_vectors(vectors, linear) -> np.ndarray:
     """``vectors @ linear[:3, :3].T`` for (..., 3) vectors."""
     v = np.asarray(vectors, np.float64)
     m = np.asarray(linear, np.float64)
-    out = v[..., 0:1] * m[:3, 0] + v[..., 1:2] * m[:3, 1]
-    return out + v[..., 2:3] * m[:3, 2]
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = v[..., 0:1] * m[:3, 0] + v[..., 1:2] * m[:3, 1]
+        return out + v[..., 2:3] * m[:3, 2]
 
 
 def det3(m) -> np.ndarray | float:
