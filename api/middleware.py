@@ -11,8 +11,6 @@ from starlette.exceptions import HTTPException
 
 from api.errors import error_body
 
-STREAM_SUFFIXES = ("/stream", "/events")
-
 
 async def _send_json(send, status: int, body: dict, headers: list | None = None) -> None:
     payload = json.dumps(body).encode()

@@ -17,9 +17,9 @@ from tracer import numba_cache
 from tracer import scene_format as fmt
 from tracer.compile import CompiledScene, compile_scene
 from tracer.effects import effect_plan
-from tracer.errors import SceneError
+from tracer.errors import SceneError, format_validation_error
 from tracer.image_io import check_output_path, write_image
-from tracer.loader import format_validation_error, load_scene
+from tracer.loader import load_scene
 from tracer.render import render_image, render_lines
 from tracer.scene_model import SceneState
 from tracer.threads import default_threads

@@ -17,9 +17,6 @@ from tracer.jit import jit, jit_inline
 from tracer.rng import uniform2
 from tracer.sampling import square_to_uniform_disk_concentric
 
-CAMERA_SIZE = 16
-"""Layout: position (3), forward (3), right (3), up (3), tan(vfov / 2), aspect (width / height),
-lens radius, focus distance."""
 LENS_RADIUS = 14
 FOCUS_DISTANCE = 15
 LENS_DIM = 8
@@ -38,8 +35,10 @@ def camera_array(
     aperture_radius: float = 0.0,
     focus_distance: float | None = None,
 ) -> np.ndarray:
-    """Camera constants for kernels; raises ValueError for a degenerate frame. The focus
-    distance defaults to the distance from ``position`` to ``look_at``."""
+    """Camera constants for kernels, float64 (16,): position (3), forward (3), right (3), up (3),
+    tan(vfov / 2), aspect (width / height), lens radius, focus distance; raises ValueError for a
+    degenerate frame. The focus distance defaults to the distance from ``position`` to
+    ``look_at``."""
     position = np.asarray(position, dtype=np.float64)
     forward = np.asarray(look_at, dtype=np.float64) - position
     norm = portable.norm(forward)

@@ -29,8 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from tracer import scene_format as fmt
 from tracer.environment import EnvironmentMap, check_image
-from tracer.errors import SceneError
-from tracer.loader import format_validation_error
+from tracer.errors import SceneError, format_validation_error
 from tracer.scene_check import check_state
 from tracer.scene_model import (
     Animation,

@@ -74,8 +74,6 @@ EFFECTS = {
 ALL = sum(EFFECTS.values())
 MATERIAL_EFFECTS = SPECULAR | GLOSSY | REFRACTION | ABSORPTION
 """Any of these needs the general BSDF dispatch; without them every surface is Lambertian."""
-SWITCHABLE = {name: EFFECTS[name] for name in fmt.EffectName.__args__}
-"""Effects a user may switch off (``render.effects``)."""
 
 LIGHT_KIND_EFFECTS = {
     lights.TRIANGLE: AREA_LIGHTS,

@@ -53,7 +53,6 @@ POINT = 1
 SPOT = 2
 SUN = 3
 SKY = 4
-LIGHT_KINDS = {"triangle": TRIANGLE, "point": POINT, "spot": SPOT, "sun": SUN, "sky": SKY}
 
 LIGHT_DATA = 16
 """Columns of ``light_data``, one row per point, spot or sun light:

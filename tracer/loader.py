@@ -26,7 +26,7 @@ from tracer.animation import (
     quaternion_from_euler_xyz,
 )
 from tracer.environment import EnvironmentMap, read_environment_image
-from tracer.errors import SceneError
+from tracer.errors import SceneError, format_validation_error
 from tracer.mesh_files import FileModel, load_file_model, load_mesh_file
 from tracer.scene_check import check_textures
 from tracer.scene_model import (
@@ -93,19 +93,6 @@ class SceneData:
             sky=self.sky,
             lights=tuple(self.lights),
         )
-
-
-def format_validation_error(error: pydantic.ValidationError) -> str:
-    """One line naming the first problem (and how many more there are)."""
-    errors = error.errors()
-    first = errors[0]
-    parts = [str(p) for p in first["loc"] if not str(p).startswith(("tagged-union[", "function-"))]
-    where = ".".join(parts) or "scene"
-    message = first["msg"]
-    if first["type"] == "extra_forbidden":
-        message = "unknown key"
-    more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
-    return f"{where}: {message}{more}"
 
 
 def resolve_reference(scene_dir: Path, reference: str) -> Path:

@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, PlainValidator
 from pydantic_core import PydanticCustomError
 
 from tracer import scene_format as fmt
-from tracer.errors import SceneError
+from tracer.errors import SceneError, format_validation_error
 from tracer.scene_check import check_textures
 from tracer.scene_model import (
     Animation,
@@ -551,8 +551,6 @@ def _parse(data, where: str) -> _Op:
         raise SceneError(f"{where}: unknown operation {kind!r} (known: {known})")
     # Imported here: the loader may build animated scenes with tracer.animation, which imports
     # this module, so a module-level import of the loader would be circular.
-    from tracer.loader import format_validation_error
-
     try:
         return OP_KINDS[kind].model_validate(data)
     except pydantic.ValidationError as error:

@@ -30,12 +30,6 @@ def mul(a, b):
 
 
 @jit
-def madd(a, b, s):
-    """``a + b * s``."""
-    return (a[0] + b[0] * s, a[1] + b[1] * s, a[2] + b[2] * s)
-
-
-@jit
 def dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
@@ -48,12 +42,6 @@ def cross(a, b):
 @jit
 def length(a):
     return math.sqrt(dot(a, a))
-
-
-@jit
-def normalize(a):
-    inv = 1.0 / length(a)
-    return (a[0] * inv, a[1] * inv, a[2] * inv)
 
 
 @jit

@@ -17,8 +17,8 @@ from api.scenes import new_id
 from api.service import job_dir, job_frames, job_state
 from api.store import TERMINAL
 from cluster.progressive import PARTS
+from tracer.errors import format_validation_error
 from tracer.image_io import read_image, write_image
-from tracer.loader import format_validation_error
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 

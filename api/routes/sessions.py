@@ -17,7 +17,7 @@ from api.models import CameraPose, SessionCreate, SessionPublic, SessionsPublic,
 from api.scenes import new_id
 from api.service import LiveSession, set_camera_now
 from tracer import scene_format as fmt
-from tracer.loader import format_validation_error
+from tracer.errors import format_validation_error
 
 router = APIRouter(prefix="/sessions", tags=["sessions"])
 
