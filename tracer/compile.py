@@ -34,7 +34,7 @@ from tracer.lights import LightTable, build_light_table, light_arrays, scene_fie
 from tracer.materials import MaterialTable, material_table
 from tracer.scene_arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
 from tracer.scene_check import check_textures
-from tracer.scene_model import Mesh, SceneState
+from tracer.scene_model import Mesh, SceneState, placed
 from tracer.static_clusters import cluster_nodes, snapped_center
 from tracer.textures import TextureTable, texture_table, uv_rows
 from tracer.transforms import round_trip_bound, to_rows
@@ -274,11 +274,9 @@ def static_key(cluster: int) -> str:
 
 def _world_triangles(node, mesh: Mesh, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """float64 (F, 3, 3) world triangles of a static node, and its faces (mirrors reversed)."""
-    with np.errstate(all="ignore"):
-        world = portable.transform_points(mesh.vertices, matrix)
+    world, faces = placed(mesh.vertices, mesh.faces, matrix)
     if not np.isfinite(world).all():
         raise SceneError(f"{node.name or node.id}: its transform moves vertices to infinity")
-    faces = mesh.faces[:, ::-1] if portable.det3(matrix) < 0.0 else mesh.faces
     return world[faces], faces
 
 

@@ -11,7 +11,8 @@ import math
 
 import numpy as np
 
-from tracer import config, portable
+from tracer import config
+from tracer.jit import jit
 
 RAMP = np.array(
     [
@@ -25,10 +26,20 @@ RAMP = np.array(
 """Colours at t = 0, 1/4, 1/2, 3/4, 1 (linearly interpolated between)."""
 
 
+@jit
+def _log_scale(per_sample, out):
+    """``log2(1 + x) / log2(1 + COST_HEATMAP_MAX)`` per element (the C library's ``log2``, not
+    numpy's per-CPU SIMD)."""
+    top = math.log2(1.0 + config.COST_HEATMAP_MAX)
+    for i in range(per_sample.size):
+        out[i] = math.log2(1.0 + per_sample[i]) / top
+
+
 def cost_heatmap(cost: np.ndarray, spp: int) -> np.ndarray:
     """float32 (..., 3) colours for per-pixel costs ``cost`` (int, any shape) of ``spp`` samples."""
-    per_sample = np.asarray(cost, dtype=np.float64) / spp
-    t = portable.elementwise(math.log2, 1.0 + per_sample) / math.log2(1.0 + config.COST_HEATMAP_MAX)
+    per_sample = np.ascontiguousarray(np.asarray(cost, dtype=np.float64) / spp)
+    t = np.empty(per_sample.shape)
+    _log_scale(per_sample.reshape(-1), t.reshape(-1))
     t = np.clip(t, 0.0, 1.0) * (len(RAMP) - 1)
     i = np.minimum(t.astype(np.int64), len(RAMP) - 2)
     f = (t - i)[..., None]

@@ -19,7 +19,7 @@ import trimesh
 from tracer import portable
 from tracer import scene_format as fmt
 from tracer.errors import SceneError
-from tracer.scene_model import Mesh, frozen_array, make_mesh
+from tracer.scene_model import Mesh, frozen_array, make_mesh, placed
 from tracer.textures import srgb_to_linear, texture_from_image
 
 METALLIC_THRESHOLD = 0.5
@@ -100,10 +100,9 @@ def load_mesh_file(path: Path) -> Mesh:
     vertices, faces, uvs = [], [], []
     count = 0
     for part in parts:
-        baked = portable.transform_points(part.mesh.vertices, part.matrix)
-        part_faces = np.asarray(part.mesh.faces, dtype=np.int64)
-        if portable.det3(part.matrix) < 0.0:  # a mirror: front faces stay front faces
-            part_faces = part_faces[:, ::-1]
+        baked, part_faces = placed(
+            part.mesh.vertices, np.asarray(part.mesh.faces, np.int64), part.matrix
+        )
         vertices.append(baked)
         faces.append(part_faces + count)
         uvs.append(mesh_uvs(part.mesh))

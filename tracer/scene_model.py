@@ -49,6 +49,13 @@ class Mesh:
         return int(self.faces.shape[0])
 
 
+def placed(vertices: np.ndarray, faces: np.ndarray, matrix: np.ndarray):
+    """``vertices`` moved by the affine ``matrix`` (``tracer.portable``) and ``faces``, reversed
+    where the matrix mirrors, so front faces stay front faces."""
+    moved = portable.transform_points(vertices, matrix)
+    return moved, (faces[:, ::-1] if portable.det3(matrix) < 0.0 else faces)
+
+
 def make_mesh(vertices, faces, label: str = "mesh", uvs=None) -> Mesh:
     """A validated mesh: at least one triangle, finite coordinates, indices in range, and
     ``uvs`` (if given) one finite pair per vertex."""
@@ -167,8 +174,7 @@ class SceneState:
         for node in self.geometry_nodes():
             matrix = self.world_transform(node.id)
             mesh = self.meshes[node.mesh]
-            vertices = portable.transform_points(mesh.vertices, matrix)
-            faces = mesh.faces[:, ::-1] if portable.det3(matrix) < 0.0 else mesh.faces
+            vertices, faces = placed(mesh.vertices, mesh.faces, matrix)
             result.append(WorldMesh(node.id, node.name, vertices, faces, node.material))
         return result
 
