@@ -4,7 +4,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from tracer.scene_format import Vec3
+from tracer.scene.format import Vec3
 
 
 class Strict(BaseModel):

@@ -4,7 +4,7 @@ Each scene has a directory ``data_dir/scenes/<id>/``::
 
     files/            the uploaded files (the scene JSON and the meshes it names, a bundle's
                       contents, or one mesh file), exactly as uploaded; nothing else
-    state.tls         the scene at a version (tracer.commit_codec.encode_state)
+    state.tls         the scene at a version (tracer.scene.codec.encode_state)
     commits/N.tlc     each commit after that version (encode_commit), in version order
 
 so a restart rebuilds the scene graph from ``state.tls`` plus the commits, without reading
@@ -42,13 +42,13 @@ from api.errors import ApiError
 from api.settings import Settings
 from api.store import Store
 from cluster.scene_graph import SceneGraph
-from tracer import portable
-from tracer.commit_codec import decode_commit, decode_state, encode_commit, encode_state
 from tracer.errors import SceneError
-from tracer.lights import mean_sky_radiance
-from tracer.loader import MESH_SUFFIXES, load_scene
-from tracer.scene_model import SceneState
-from tracer.scene_ops import Commit
+from tracer.maths import portable
+from tracer.scene.codec import decode_commit, decode_state, encode_commit, encode_state
+from tracer.scene.loader import MESH_SUFFIXES, load_scene
+from tracer.scene.model import SceneState
+from tracer.scene.ops import Commit
+from tracer.shading.lights import mean_sky_radiance
 
 COMPACT_EVERY = 256
 GROWING_OPS = ("add_mesh", "replace_mesh", "add_node")
@@ -291,12 +291,13 @@ def bounds(state: SceneState) -> tuple[list[float], list[float]] | None:
 
 
 def effects(state: SceneState) -> dict:
-    """The effect plan the tracers render the scene with: ``tracer.effects.effect_plan`` of the
-    compiled scene under its render settings (the same function, so the same answer). Compiling
-    builds the BVHs, about a second per million triangles, on a worker thread (numba releases
-    the GIL); the result is cached per version with the rest of the summary."""
-    from tracer.compile import compile_scene
-    from tracer.effects import effect_plan
+    """The effect plan the tracers render the scene with:
+    ``tracer.integrators.effects.effect_plan`` of the compiled scene under its render settings (the
+    same function, so the same answer). Compiling builds the BVHs, about a second per million
+    triangles, on a worker thread (numba releases the GIL); the result is cached per version with
+    the rest of the summary."""
+    from tracer.compiled.scene import compile_scene
+    from tracer.integrators.effects import effect_plan
 
     return effect_plan(compile_scene(state), state.render).to_json()
 
@@ -409,7 +410,7 @@ class SceneRepository:
                 commit = decode_commit(path.read_bytes())
                 if commit.version <= state.version:
                     continue
-                from tracer.scene_ops import apply_commit
+                from tracer.scene.ops import apply_commit
 
                 state = apply_commit(state, commit)
         except (OSError, SceneError, ValueError) as exc:
@@ -430,7 +431,7 @@ class SceneRepository:
             raise ApiError(
                 422, f"a commit may hold at most {self.settings.max_ops} operations", "too_many_ops"
             )
-        from tracer.scene_ops import apply_ops, parse_ops
+        from tracer.scene.ops import apply_ops, parse_ops
 
         parsed = parse_ops(ops)  # SceneError -> 422
         with entry.lock:

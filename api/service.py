@@ -53,11 +53,11 @@ from api.settings import Settings
 from api.store import TERMINAL, Store
 from cluster.progressive import Goal, ProgressiveFrame, SpotCheck
 from cluster.scene_graph import SceneGraph
-from tracer import scene_format as fmt
-from tracer.commit_codec import decode_state, encode_state
 from tracer.errors import SceneError
-from tracer.image_io import linear_to_srgb8, write_image
-from tracer.scene_model import SceneState
+from tracer.io.images import linear_to_srgb8, write_image
+from tracer.scene import format as fmt
+from tracer.scene.codec import decode_state, encode_state
+from tracer.scene.model import SceneState
 
 log = logging.getLogger("tilerender.api")
 
@@ -396,7 +396,7 @@ def session_factory_for(settings: Settings) -> Callable[[], type]:
 
 def warm_state() -> SceneState:
     """A one-quad scene the coordinator starts with (tracers need a scene to come up)."""
-    from tracer.loader import scene_from_file_model
+    from tracer.scene.loader import scene_from_file_model
 
     scene = fmt.SceneFile.model_validate(
         {

@@ -52,7 +52,7 @@ from cluster.balance import BALANCERS, CostAware, TracerReport, min_max_cuts
 from cluster.connect import connect, disconnect
 from cluster.coordinator import Coordinator
 from cluster.scene_graph import SceneGraph
-from tracer.loader import load_scene
+from tracer.scene.loader import load_scene
 from worker.work_units import WorkUnits
 
 CORNELL = REPO_ROOT / "scenes" / "cornell-box" / "scene.json"

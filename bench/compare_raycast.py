@@ -31,14 +31,14 @@ from common import (
 )
 from raycast import camera_rays, diffuse_rays, icospheres
 
-from tracer import bvh
-from tracer.raycast import closest_hits
+from tracer.geometry import bvh
+from tracer.geometry.raycast import closest_hits
 
 WORKER = """
 import hashlib, json, sys, time
 import numpy as np
-from tracer import bvh
-from tracer.raycast import any_hits, closest_hits
+from tracer.geometry import bvh
+from tracer.geometry.raycast import any_hits, closest_hits
 
 data = np.load(sys.argv[1])
 names = [str(n) for n in data["names"]]

@@ -33,10 +33,15 @@ from common import (
 
 WORKER = """
 import hashlib, json, sys, time
-from tracer.compile import compile_scene
-from tracer.loader import load_scene
 from tracer.render import render_image
-from tracer import scene_format as fmt
+try:
+    from tracer.compiled.scene import compile_scene
+    from tracer.scene import format as fmt
+    from tracer.scene.loader import load_scene
+except ImportError:  # a base tree from before tracer/ had subpackages (issue #21)
+    from tracer.compile import compile_scene
+    from tracer import scene_format as fmt
+    from tracer.loader import load_scene
 
 scene_path, width, height, spp, threads = sys.argv[1:6]
 scene = compile_scene(load_scene(scene_path))

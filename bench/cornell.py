@@ -100,10 +100,10 @@ def tilerender_contender(workload: Workload) -> Contender:
     """Render the repo's Cornell box scene; round ``r`` uses seed ``r``."""
     # Imported here, after Mitsuba: Dr.Jit then loads its libLLVM before numba's llvmlite does
     # (the order this benchmark is tested in).
-    from tracer import scene_format as fmt
-    from tracer.compile import compile_scene
-    from tracer.loader import load_scene
+    from tracer.compiled.scene import compile_scene
     from tracer.render import render_image
+    from tracer.scene import format as fmt
+    from tracer.scene.loader import load_scene
 
     scene = compile_scene(load_scene(SCENE))
     camera = fmt.override(scene.camera, width=workload.width, height=workload.height)

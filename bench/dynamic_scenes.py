@@ -7,7 +7,7 @@ Three measurements, all on scenes built here (nothing to download):
    commit (validation, state update, incremental compile: the top level is rebuilt, mesh BVHs
    are reused). Target <= 10 ms.
 2. **Deform a 20k-triangle mesh**: ``update_vertices`` on a 20,480-triangle sphere. Timed: the
-   BVH refit alone (``tracer.bvh_update.update`` with an infinite threshold) and the whole
+   BVH refit alone (``tracer.geometry.bvh_update.update`` with an infinite threshold) and the whole
    replica apply. Target: refit <= 10 ms.
 3. **Museum** (after Reiter's workload; BART's museum): a static room and N separate triangles
    that fly apart from a sphere, tumbling, and come back together. Every frame is an
@@ -16,7 +16,7 @@ Three measurements, all on scenes built here (nothing to download):
    Reported per strategy: update time, render time and their sum over the animation. The three
    renders of every frame must be bit-identical (the BVH changes speed, never pixels).
 
-Commit and snapshot sizes (the binary codec, ``tracer.commit_codec``) are reported for each.
+Commit and snapshot sizes (the binary codec, ``tracer.scene.codec``) are reported for each.
 """
 
 import argparse
@@ -41,12 +41,12 @@ from common import (
     write_results,
 )
 
-from tracer import bvh_update
-from tracer import scene_format as fmt
-from tracer.commit_codec import encode_commit, encode_state
+from tracer.geometry import bvh_update
 from tracer.render import render_image
-from tracer.scene_model import Node, SceneState, Sky, frozen_array, make_mesh
-from tracer.scene_ops import Commit, parse_ops
+from tracer.scene import format as fmt
+from tracer.scene.codec import encode_commit, encode_state
+from tracer.scene.model import Node, SceneState, Sky, frozen_array, make_mesh
+from tracer.scene.ops import Commit, parse_ops
 from worker.replica import SceneReplica
 
 STRATEGIES = {"refit": math.inf, "selective": 1.3, "rebuild": 0.0}

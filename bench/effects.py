@@ -88,8 +88,8 @@ def spot_lit_studio():
     rays in a scene whose sample scenes all have area lights or a sky)."""
     import dataclasses
 
-    from tracer import scene_format as fmt
-    from tracer.loader import load_scene
+    from tracer.scene import format as fmt
+    from tracer.scene.loader import load_scene
 
     state = load_scene(REPO_ROOT / "scenes" / "studio" / "scene.json")
     materials = {
@@ -108,7 +108,7 @@ def spot_lit_studio():
 def scene_states(args: argparse.Namespace):
     """(name, state) of every sample scene, then the spot-lit studio."""
     from cli.commands import sample_scene_files
-    from tracer.loader import load_scene
+    from tracer.scene.loader import load_scene
 
     for path in sample_scene_files(REPO_ROOT / "scenes"):
         yield path.parent.name, lambda path=path: load_scene(path)
@@ -116,10 +116,10 @@ def scene_states(args: argparse.Namespace):
 
 
 def measure_scenes(args: argparse.Namespace) -> dict:
-    from tracer.compile import compile_scene
-    from tracer.effects import ALL, EFFECTS, EffectPlan, effect_plan
+    from tracer.compiled.scene import compile_scene
+    from tracer.integrators.effects import ALL, EFFECTS, EffectPlan, effect_plan
     from tracer.render import render_image
-    from tracer.scene_format import override
+    from tracer.scene.format import override
 
     out = {}
     for name, make in scene_states(args):
@@ -225,10 +225,10 @@ def report_scenes(scenes: dict, specialised: bool) -> None:
 COLD_SCRIPT = """
 import sys, time
 start = time.perf_counter()
-from tracer.compile import compile_scene
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
+from tracer.scene.loader import load_scene
 from tracer.render import render_lines
-from tracer.scene_format import override
+from tracer.scene.format import override
 scene = compile_scene(load_scene(sys.argv[1]))
 loaded = time.perf_counter()
 tiny = override(scene.camera, width=1, height=1)

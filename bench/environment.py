@@ -32,14 +32,14 @@ from common import (
     write_results,
 )
 
-from tracer import lights
-from tracer import scene_format as fmt
-from tracer.compile import compile_scene
-from tracer.environment import EnvironmentMap
-from tracer.environment_light import sampling_tables
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
-from tracer.scene_format import override
+from tracer.scene import format as fmt
+from tracer.scene.environment import EnvironmentMap
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
+from tracer.shading import lights
+from tracer.shading.environment_light import sampling_tables
 
 SCENE = REPO_ROOT / "scenes" / "environment" / "scene.json"
 
@@ -155,8 +155,8 @@ def passes(scene, camera, settings, count: int, threads: int) -> np.ndarray:
 
 def pixel_materials(scene, camera) -> np.ndarray:
     """The material each pixel's centre sees ("sky" where the ray escapes), (H, W)."""
-    from tracer.camera import camera_array, primary_ray
-    from tracer.query import scene_hits
+    from tracer.geometry.query import scene_hits
+    from tracer.shading.camera import camera_array, primary_ray
 
     w, h = camera.width, camera.height
     cam = camera_array(camera.position, camera.look_at, camera.up, camera.vfov_deg, w, h)

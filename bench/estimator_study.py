@@ -1,5 +1,5 @@
-"""The online error estimate (``tracer.error_estimate``) against the true error, on development
-renders that are not the accuracy study's.
+"""The online error estimate (``tracer.accuracy.error_estimate``) against the true error, on
+development renders that are not the accuracy study's.
 
 ``render``: every sample scene at the study's size with its reference's settings (so a render
 is unbiased against the study's reference, ``cli.accuracy_reference``) and seed 101 (the
@@ -12,8 +12,8 @@ defaults 8 up to 256 spp, 4 at 512 and 2 at 1024). Cached in ``bench/results/est
 
 ``evaluate``: at every level from 4 to 1024 spp and every repeat, each estimator of
 :data:`ESTIMATORS` (from the parts alone) and the current one with the repeat's spot checks
-(``tracer.spot_check``, rendered on the development seed's checks stream and cached beside the
-batches) against the true relative error of the parts' mean (the reference's noise floor
+(``tracer.accuracy.spot_check``, rendered on the development seed's checks stream and cached beside
+the batches) against the true relative error of the parts' mean (the reference's noise floor
 subtracted, as the study does). A level counts as *within* when the estimate of the first
 repeat is within +-30% of its true error (one render, as the study's calibration measures it);
 the repeats give the same over every render, and the *expected* error (the root of the mean
@@ -53,13 +53,13 @@ from cli.accuracy_reference import (
     reference_settings,
 )
 from cli.commands import sample_scene_files
-from tracer import error_estimate as ee
-from tracer import scene_format as fmt
-from tracer.compile import CompiledScene, compile_scene
-from tracer.loader import load_scene
+from tracer.accuracy import error_estimate as ee
+from tracer.accuracy.spot_check import SpotCheckLedger, render_spot_checks
+from tracer.compiled.scene import CompiledScene, compile_scene
+from tracer.kernel.threads import default_threads
 from tracer.render import render_image
-from tracer.spot_check import SpotCheckLedger, render_spot_checks
-from tracer.threads import default_threads
+from tracer.scene import format as fmt
+from tracer.scene.loader import load_scene
 
 DEV_DIR = RESULTS_DIR / "estimator-dev"
 DEV_SEED = 101
@@ -86,7 +86,7 @@ def study_setup(path: Path, options: StudyOptions, reuse: bool = False) -> Setup
     With ``reuse`` (``--reuse-references``), our own reference is read from the study's cache
     even when the cache key misses, if a reference of the scene at this size is there (the
     newest one): the key hashes every ``tracer/*.py``, so an edit of
-    ``tracer/error_estimate.py`` alone, which renders nothing, would otherwise render every
+    ``tracer/accuracy/error_estimate.py`` alone, which renders nothing, would otherwise render every
     reference again (16,384 spp each). After a kernel change that reference may be stale, so
     this is the caller's call."""
     scene = compile_scene(load_scene(path))
@@ -288,10 +288,10 @@ ESTIMATORS: dict[str, Estimator] = {
     "the same, corroborated at 0.25, top 2": corroborated(0.25, 2),
     "outliers above 3x corroborated, None by top 2": corroborated(0.5, 2, outlier=3.0),
     "outliers above 4x corroborated, None by top 2": corroborated(0.5, 2, outlier=4.0),
-    "tracer.error_estimate without spot checks": ee.estimate_rel_mse,
+    "tracer.accuracy.error_estimate without spot checks": ee.estimate_rel_mse,
 }
-WITH_CHECKS = "tracer.error_estimate with spot checks (current code)"
-"""The estimator that also takes the render's spot checks (``tracer.spot_check``)."""
+WITH_CHECKS = "tracer.accuracy.error_estimate with spot checks (current code)"
+"""The estimator that also takes the render's spot checks (``tracer.accuracy.spot_check``)."""
 NAMES = (*ESTIMATORS, WITH_CHECKS)
 
 
@@ -317,7 +317,7 @@ def evaluate_scene(setup: Setup, means: np.ndarray, max_spp: int) -> list[dict]:
 
 
 class SpotCheckCache:
-    """The spot checks of a scene's development renders (``tracer.spot_check``, planned for
+    """The spot checks of a scene's development renders (``tracer.accuracy.spot_check``, planned for
     each render on its own as the first wave to reach its spp would, priced in samples (the
     batches keep no work counts), on a checks stream of its own per repeat: the development
     seed plus the repeat), cached in ``DEV_DIR`` per level and repeat with the pixels they
@@ -475,7 +475,7 @@ def cmd_evaluate(args) -> dict:
 
 TARGETS = (0.3, 0.1, 0.05)
 """Relative errors of the simulated renders to a target (``target_stops``)."""
-TARGET_ESTIMATORS = ("tracer.error_estimate without spot checks", WITH_CHECKS)
+TARGET_ESTIMATORS = ("tracer.accuracy.error_estimate without spot checks", WITH_CHECKS)
 
 
 def target_stops(results: dict[str, list[dict]]) -> list[dict]:

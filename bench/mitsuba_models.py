@@ -10,8 +10,9 @@ albedo itself is noisy:
 - plastic base (the diffuse part under the coat): ours
   ``R / (1 - Fdr) T(cos_i) T(cos_o) / (pi eta^2)`` with the rough coat's tables
   (docs/materials.md) against the diffuse component of Mitsuba's ``plastic`` (roughness 0) or
-  ``roughplastic`` with the same ``R``; and against Mitsuba's as ``tracer.mitsuba_export``
-  writes it, ``R`` scaled by ``rough_plastic_base_scale`` (which undoes Mitsuba's sum for
+  ``roughplastic`` with the same ``R``; and against Mitsuba's as
+  ``tracer.crosscheck.mitsuba_export`` writes it, ``R`` scaled by ``rough_plastic_base_scale``
+  (which undoes Mitsuba's sum for
   ``Fdr``, the mean of ``2 R(mu) mu`` over 64 equally spaced ``mu``): what remains is the
   masking of the coat's transmittance;
 - plastic, whole (coat and base), rough only: ours against Mitsuba's ``roughplastic`` as
@@ -68,9 +69,9 @@ def mitsuba_eval(mi, bsdf, wo, wi, component: int | None = None) -> float:
 
 def conductor_rows(mi, rng, samples: int) -> list[dict]:
     """Albedo of our rough conductor and Mitsuba's / ours, per roughness and view angle."""
-    from tracer import bsdf as ours
-    from tracer import scene_format as fmt
-    from tracer.materials import material_row
+    from tracer.scene import format as fmt
+    from tracer.shading import bsdf as ours
+    from tracer.shading.materials import material_row
 
     rows = []
     for roughness in ROUGHNESS:
@@ -113,10 +114,10 @@ def conductor_rows(mi, rng, samples: int) -> list[dict]:
 def plastic_rows(mi, rng, samples: int) -> list[dict]:
     """Albedo of our plastic (its base; the whole BSDF when rough) and Mitsuba's / ours, per
     roughness and view angle."""
-    from tracer import bsdf as ours
-    from tracer import scene_format as fmt
-    from tracer.materials import PLASTIC_MIN_ALPHA, material_row
-    from tracer.mitsuba_export import rough_plastic_base_scale
+    from tracer.crosscheck.mitsuba_export import rough_plastic_base_scale
+    from tracer.scene import format as fmt
+    from tracer.shading import bsdf as ours
+    from tracer.shading.materials import PLASTIC_MIN_ALPHA, material_row
 
     rows = []
     for roughness in PLASTIC_ROUGHNESS:

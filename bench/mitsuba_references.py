@@ -1,7 +1,8 @@
 """Mitsuba 3 reference images of the sample scenes and of the cross-check scenes (scenes/mitsuba/).
 
-For each scene: export it with ``tracer.mitsuba_export`` at the reference size (the scene's own
-size divided by a whole factor, about 12,000 pixels), render ``--passes`` independent passes of
+For each scene: export it with ``tracer.crosscheck.mitsuba_export`` at the reference size (the
+scene's own size divided by a whole factor, about 12,000 pixels), render ``--passes`` independent
+passes of
 ``--spp`` samples with Mitsuba (seeds 0, 1, ...), and store next to the scene file:
 
 - ``mitsuba_mean.npy``: float32 (H, W, 3) linear RGB, row 0 at the top: the mean of the passes;
@@ -111,8 +112,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def reference_state(scene_file: Path, factor: int):
     """The loaded scene with its camera at the reference size (its size divided by ``factor``)."""
-    from tracer import scene_format as fmt
-    from tracer.loader import load_scene
+    from tracer.scene import format as fmt
+    from tracer.scene.loader import load_scene
 
     state = load_scene(scene_file)
     camera = state.camera
@@ -135,7 +136,7 @@ def render_passes(mi, xml_path: Path, passes: int, spp: int) -> tuple[np.ndarray
 
 def make_reference(mi, name: str, args: argparse.Namespace, export_root: Path) -> dict:
     """Export, render and store one scene's reference; its record."""
-    from tracer.mitsuba_export import export_scene, scene_inputs_digest
+    from tracer.crosscheck.mitsuba_export import export_scene, scene_inputs_digest
 
     relative, factor = SCENES[name]
     scene_file = SCENES_DIR / relative

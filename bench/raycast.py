@@ -42,8 +42,8 @@ from common import (
     write_results,
 )
 
-from tracer import bvh
-from tracer.raycast import Hits, any_hits, closest_hits
+from tracer.geometry import bvh
+from tracer.geometry.raycast import Hits, any_hits, closest_hits
 
 BUILD_TARGET = 2.0
 """Most BVH build seconds per million triangles."""

@@ -124,7 +124,7 @@ def scene_document() -> dict:
 
 def orbit_camera(angle_deg: float, width: int, height: int):
     """The camera at azimuth ``angle_deg``, level, looking at the ring's centre."""
-    from tracer import scene_format as fmt
+    from tracer.scene import format as fmt
 
     a = math.radians(angle_deg)
     position = (ORBIT_RADIUS * math.sin(a), CAMERA_HEIGHT, ORBIT_RADIUS * math.cos(a))
@@ -140,8 +140,8 @@ def orbit_camera(angle_deg: float, width: int, height: int):
 
 def load_orbit_scene():
     """The scene, loaded and compiled through the normal loader (from a temporary folder)."""
-    from tracer.compile import compile_scene
-    from tracer.loader import load_scene
+    from tracer.compiled.scene import compile_scene
+    from tracer.scene.loader import load_scene
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -153,8 +153,8 @@ def load_orbit_scene():
 
 def record(name: str, frames: int, spp: int, threads: int, state, scene, out: Path) -> Path:
     """Render one orbit and save its trace; returns the file written."""
-    from tracer import scene_format as fmt
     from tracer.render import render_image, render_pixels
+    from tracer.scene import format as fmt
 
     degrees, width, height = ORBITS[name]
     settings = fmt.override(state.render, spp=spp)

@@ -3,7 +3,7 @@ traversal with the intersector of before the fixes, side by side in one run.
 
 "Before the fixes" (``naive_closest``, below): a Moller-Trumbore triangle test with a constant
 epsilon on ``t``, and a slab test with min/max swaps and no widening; same BVH, same traversal
-order, same float32 data, float64 arithmetic. "After" is ``tracer.raycast.closest_hits``:
+order, same float32 data, float64 arithmetic. "After" is ``tracer.geometry.raycast.closest_hits``:
 watertight test, the ``deltaT`` rejection near ``t = 0``, the NaN-safe sign-selected slab test.
 
 Workloads: camera rays on the ~1.31M-triangle smooth and bumpy icospheres of
@@ -31,12 +31,13 @@ from common import (
 from numba import njit
 from raycast import camera_rays, icospheres
 
-from tracer import bvh, config
-from tracer.borrow import borrowed
-from tracer.compile import STATIC_KEY, compile_scene
-from tracer.intersect import nearer_first, push_far
-from tracer.loader import load_scene
-from tracer.raycast import Hits, _closest
+from tracer import config
+from tracer.compiled.scene import STATIC_KEY, compile_scene
+from tracer.geometry import bvh
+from tracer.geometry.intersect import nearer_first, push_far
+from tracer.geometry.raycast import Hits, _closest
+from tracer.kernel.borrow import borrowed
+from tracer.scene.loader import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_COST = 0.10
@@ -46,7 +47,8 @@ NAIVE_EPSILON = 1e-7
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _naive_slab(b, node, s, ox, oy, oz, ix, iy, iz, t_max):
-    """Entry distance into the box of slot ``s`` of a wide node (tracer.bvh layout), or inf."""
+    """Entry distance into the box of slot ``s`` of a wide node (tracer.geometry.bvh layout), or
+    inf."""
     t0 = (b[node, s] - ox) * ix
     t1 = (b[node, 12 + s] - ox) * ix
     near = min(t0, t1)
@@ -99,7 +101,7 @@ def _moller_trumbore(tv, j, o, d, t_max):
 def naive_closest(
     node_bounds, node_child, tri_verts, tri_prim, origins, directions, stack_node, stack_t, prim
 ):
-    """Closest hits with the pre-fix intersector; same traversal as tracer.intersect."""
+    """Closest hits with the pre-fix intersector; same traversal as tracer.geometry.intersect."""
     node_bounds = borrowed(node_bounds)
     node_child = borrowed(node_child)
     tri_verts = borrowed(tri_verts)

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from common import machine_info, print_machine, print_table, verdict, write_results
 
-from tracer import scene_format as fmt
-from tracer.compile import compile_scene
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
+from tracer.scene import format as fmt
+from tracer.scene.loader import load_scene
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 GLASS_SCENES = ("cornell-spheres", "mitsuba/sun", "mitsuba/outdoor")

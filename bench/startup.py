@@ -5,7 +5,7 @@ pointing at a fresh, empty directory, so numba compiles every kernel it needs. W
 command again with the same cache directory, repeated; this is "warm start to first pixel". A
 still this small renders in the command's own process by default; the same command with
 ``--no-in-process`` (through a tracer actor on an embedded Ray) is timed beside it, as are
-importing the tracer (``python -c "import tracer.render, tracer.loader"``) and the bare
+importing the tracer (``python -c "import tracer.render, tracer.scene.loader"``) and the bare
 interpreter (``python -c pass``), interleaved with the warm runs.
 """
 
@@ -159,7 +159,9 @@ def measure(args: argparse.Namespace, work: Path) -> dict:
         CLI_RAY: Contender(lambda _: run_command([*command, "--no-in-process"], env, args.timeout)),
         IMPORT: Contender(
             lambda _: run_command(
-                [sys.executable, "-c", "import tracer.render, tracer.loader"], env, args.timeout
+                [sys.executable, "-c", "import tracer.render, tracer.scene.loader"],
+                env,
+                args.timeout,
             )
         ),
         PYTHON: Contender(lambda _: run_command([sys.executable, "-c", "pass"], env, args.timeout)),

@@ -35,11 +35,7 @@ from cli.accuracy_reference import (
     own_reference,
     reference_settings,
 )
-from tracer import effects
-from tracer import scene_format as fmt
-from tracer.compile import CompiledScene, compile_scene
-from tracer.effects import EffectPlan, effect_plan
-from tracer.error_estimate import (
+from tracer.accuracy.error_estimate import (
     PARTS,
     estimate_rel_error,
     noise_floor,
@@ -49,10 +45,14 @@ from tracer.error_estimate import (
     rmse,
     to_display,
 )
-from tracer.loader import load_scene
+from tracer.accuracy.spot_check import SpotCheckLedger, render_spot_checks
+from tracer.compiled.scene import CompiledScene, compile_scene
+from tracer.integrators import effects
+from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.kernel.threads import default_threads
 from tracer.render import render_image
-from tracer.spot_check import SpotCheckLedger, render_spot_checks
-from tracer.threads import default_threads
+from tracer.scene import format as fmt
+from tracer.scene.loader import load_scene
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO_ROOT / "bench" / "results" / "accuracy-cache"
@@ -104,9 +104,9 @@ class Config:
     label: str
     changes: dict = field(default_factory=dict)
     drop: int = 0
-    """Effect flags removed from the scene's plan (``tracer.effects``)."""
+    """Effect flags removed from the scene's plan (``tracer.integrators.effects``)."""
     add: int = 0
-    """Kernel switches added to the plan (``tracer.effects.NO_MIS``)."""
+    """Kernel switches added to the plan (``tracer.integrators.effects.NO_MIS``)."""
 
     def settings(self, base: fmt.RenderSettings) -> fmt.RenderSettings:
         return fmt.override(base, **self.changes)
@@ -410,10 +410,10 @@ gets, whether it runs in the scene's build of the kernel). The ``whitted`` stage
 own ray tracer (direct light, recursion through mirrors and glass); without material effects
 every surface is Lambertian. ``all effects`` is the path tracer, so the indirect part is what
 path tracing adds to Whitted's with every effect. A scene with material effects runs in the
-kernel build with the material dispatch (``tracer.integrator.kernel_for``), where every step
+kernel build with the material dispatch (``tracer.integrators.path.kernel_for``), where every step
 costs more than in the build without it; Reiter's renderer switched effects at run time, in
 one build, so every stage but ``diffuse`` runs in the scene's build
-(``tracer.effects.MATERIAL_BUILD``), and the build's own cost is a part of its own."""
+(``tracer.integrators.effects.MATERIAL_BUILD``), and the build's own cost is a part of its own."""
 
 
 def effect_parts(median: dict[str, float]) -> dict[str, float]:
@@ -505,7 +505,7 @@ def calibration(
     render is unbiased against it) with another seed, ``PARTS`` independent parts that double
     together, as a progressive render's waves do; at each total spp the estimate from the parts
     and their spot checks, topped up level by level as a progressive render's are
-    (``tracer.spot_check``; None where it says the error is not estimable yet), the pixels
+    (``tracer.accuracy.spot_check``; None where it says the error is not estimable yet), the pixels
     checked, and the true relative error of their mean (the
     reference's noise floor subtracted); with the render seconds of the parts so far and of
     the level's spot checks (:class:`RenderClock`)."""

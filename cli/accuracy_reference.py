@@ -11,7 +11,7 @@ Otherwise the reference is our own path tracer with every effect, ``max_depth``
 ``REFERENCE_DEPTH`` and a seed no sweep uses, in ``passes`` independent passes over disjoint
 sample ranges: their mean is the reference and their spread gives its variance. It is cached
 under a key that hashes the scene's files, the camera, the settings and the tracer's code (the
-hash ``tracer.numba_cache`` keys compiled kernels by), so a changed renderer never meets a
+hash ``tracer.kernel.numba_cache`` keys compiled kernels by), so a changed renderer never meets a
 reference it made before the change.
 """
 
@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tracer import scene_format as fmt
-from tracer.compile import CompiledScene
-from tracer.numba_cache import source_digest
+from tracer.compiled.scene import CompiledScene
+from tracer.kernel.numba_cache import source_digest
 from tracer.render import render_image
+from tracer.scene import format as fmt
 
 REFERENCE_DEPTH = 64
 """Path vertices of our own references: deeper than any configuration of the sweep, so that a

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from cli.accuracy import DEFAULT_CONFIG, TARGETS
-from tracer.error_estimate import PARTS, SPOT_CHECK_FACTOR, SPOT_CHECKS, to_display
+from tracer.accuracy.error_estimate import PARTS, SPOT_CHECK_FACTOR, SPOT_CHECKS, to_display
 
 REPORT_START = "<!-- accuracy-report:start -->"
 REPORT_END = "<!-- accuracy-report:end -->"

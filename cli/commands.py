@@ -13,16 +13,16 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 
 from cli.main import CommandFailed, UsageError
 from cluster.balance import DEFAULT_BALANCER
-from tracer import numba_cache
-from tracer import scene_format as fmt
-from tracer.compile import CompiledScene, compile_scene
-from tracer.effects import effect_plan
+from tracer.compiled.scene import CompiledScene, compile_scene
 from tracer.errors import SceneError, format_validation_error
-from tracer.image_io import check_output_path, write_image
-from tracer.loader import load_scene
+from tracer.integrators.effects import effect_plan
+from tracer.io.images import check_output_path, write_image
+from tracer.kernel import numba_cache
+from tracer.kernel.threads import default_threads
 from tracer.render import render_image, render_lines
-from tracer.scene_model import SceneState
-from tracer.threads import default_threads
+from tracer.scene import format as fmt
+from tracer.scene.loader import load_scene
+from tracer.scene.model import SceneState
 
 REPO_SCENES = Path(__file__).resolve().parents[1] / "scenes"
 

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 EXIT_FAILED = 1
 EXIT_USAGE = 2
 INTEGRATORS = ("path", "direct", "whitted", "ao", "albedo", "normal", "depth", "cost")
-"""The scene format's integrators (tracer.scene_format.INTEGRATORS; a test keeps them equal)."""
+"""The scene format's integrators (tracer.scene.format.INTEGRATORS; a test keeps them equal)."""
 EXIT_INTERRUPTED = 130
 
 DESCRIPTION = """\

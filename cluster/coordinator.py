@@ -94,11 +94,11 @@ from cluster.balance import DEFAULT_BALANCER, TracerReport, even_split, make_bal
 from cluster.connect import connect
 from cluster.scene_graph import SceneGraph
 from cluster.tail import TailPlan
-from tracer import scene_format as fmt
-from tracer.commit_codec import encode_commit, encode_state
-from tracer.error_estimate import PARTS
-from tracer.scene_model import SceneState
-from tracer.spot_check import SpotCheck
+from tracer.accuracy.error_estimate import PARTS
+from tracer.accuracy.spot_check import SpotCheck
+from tracer.scene import format as fmt
+from tracer.scene.codec import encode_commit, encode_state
+from tracer.scene.model import SceneState
 from worker.line_pool import LinePool
 from worker.line_pool import supported as line_pool_supported
 from worker.line_pool import sweep as line_pool_sweep
@@ -1333,7 +1333,7 @@ class Coordinator:
     ) -> tuple[int, Any]:
         """Ray queries (Bikker 7.3.6) at the current version of ``graph`` (default the own
         graph) on a ready tracer, which first reaches that version like a render call. Returns
-        ``(version, tracer.query.SceneHits)``."""
+        ``(version, tracer.geometry.query.SceneHits)``."""
         graph = graph or self.graph
         state = graph.state
         origins, directions = np.asarray(origins, float), np.asarray(directions, float)
@@ -1357,7 +1357,7 @@ class Coordinator:
         settings: fmt.RenderSettings | None = None,
         graph: SceneGraph | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """A progressive frame's spot checks (``tracer.spot_check``) of ``frame`` at the
+        """A progressive frame's spot checks (``tracer.accuracy.spot_check``) of ``frame`` at the
         current version of ``graph``, shared out over the ready tracers. Returns ``(pixels,
         parts, work)``: the pixels checked, their (PARTS, P', 3) parts and (P',) work. A
         tracer that fails its share, or has not answered after ``stall_timeout``, drops those

@@ -3,8 +3,8 @@
 A frame is rendered in *waves* (after pbrt's ``ImageTileIntegrator::Render``), each wave made
 of ``PARTS`` parts with the same number of samples per pixel over disjoint sample ranges, so
 the parts are independent estimates of the same image. Their spread estimates the error of
-their mean without a reference (``tracer.error_estimate``), or says it cannot be estimated yet
-(None). Waves double the samples so far (at most ``MAX_PART_SPP`` per part), and shrink to what
+their mean without a reference (``tracer.accuracy.error_estimate``), or says it cannot be estimated
+yet (None). Waves double the samples so far (at most ``MAX_PART_SPP`` per part), and shrink to what
 the goal still needs: when a target error is set and estimated, the samples predicted to reach
 it (error falls as 1/sqrt(samples)); when a time budget is set, the samples predicted to fit in
 what is left of it (from the last wave's seconds per sample). The frame stops after a complete
@@ -14,7 +14,7 @@ wave whose estimate meets the target, when the next wave would not fit in the bu
 After each wave, the few pixels whose error the parts cannot tell (a light smaller than a
 pixel, seen by one part) are *spot-checked* before the estimate: rendered again,
 independently, to ``SPOT_CHECK_FACTOR`` times the frame's samples, topping up their checks of
-earlier waves (``tracer.spot_check``).
+earlier waves (``tracer.accuracy.spot_check``).
 
 :class:`ProgressiveFrame` is the state and the rules, with no Ray in it (a caller may drive it
 one part at a time, as the service does between other work); :func:`render_progressive`
@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracer import scene_format as fmt
-from tracer.error_estimate import PARTS, estimate_rel_error
-from tracer.spot_check import SpotCheck, SpotCheckLedger
+from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
+from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
+from tracer.scene import format as fmt
 
 MAX_PART_SPP = 64
 """Most samples per pixel one part of a wave adds."""
@@ -44,8 +44,8 @@ prediction falls just short about half the time, which costs a whole extra wave.
 @dataclass(frozen=True)
 class Goal:
     """When a progressive frame stops: at ``target_error`` (estimated relative RMS error,
-    ``tracer.error_estimate``), after ``time_budget`` seconds, or at ``max_spp`` samples per
-    pixel, whichever comes first. At least one wave (``PARTS`` spp) is always rendered."""
+    ``tracer.accuracy.error_estimate``), after ``time_budget`` seconds, or at ``max_spp`` samples
+    per pixel, whichever comes first. At least one wave (``PARTS`` spp) is always rendered."""
 
     target_error: float | None = None
     time_budget: float | None = None

@@ -1,6 +1,6 @@
 """The authoritative, versioned scene (Brigade's scene graph, Bikker 7.3.1-7.3.4).
 
-Every change is a :class:`~tracer.scene_ops.Commit` that takes version ``v`` to ``v + 1``. The
+Every change is a :class:`~tracer.scene.ops.Commit` that takes version ``v`` to ``v + 1``. The
 graph keeps the last ``log_limit`` commits, so a replica that is a little behind catches up by
 applying them in order; one that is further behind (or new) gets a snapshot instead.
 
@@ -14,11 +14,11 @@ from collections import deque
 from collections.abc import Iterable, Mapping
 from itertools import islice
 
-from tracer.animation import animation_ops
 from tracer.errors import SceneError
-from tracer.scene_check import check_state
-from tracer.scene_model import SceneState
-from tracer.scene_ops import Commit, Op, apply_commit, parse_ops
+from tracer.scene.animation import animation_ops
+from tracer.scene.checks import check_state
+from tracer.scene.model import SceneState
+from tracer.scene.ops import Commit, Op, apply_commit, parse_ops
 
 
 class SceneGraph:

@@ -26,8 +26,8 @@ import numpy as np
 
 from cluster.coordinator import Coordinator, Frame
 from cluster.scene_graph import SceneGraph
-from tracer import portable
-from tracer import scene_format as fmt
+from tracer.maths import portable
+from tracer.scene import format as fmt
 
 RESOLUTION_SCALES = (1.0, 0.5, 0.25)
 """Fractions of the camera's width and height a session may render at, best first."""

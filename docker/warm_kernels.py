@@ -1,6 +1,6 @@
 """Fill numba's kernel cache while the image is built, so no container compiles at start.
 
-The path kernel has four builds (``tracer.integrator.KERNELS``: with or without the material
+The path kernel has four builds (``tracer.integrators.path.KERNELS``: with or without the material
 dispatch, with or without point/spot/sun/sky lights); a scene needs the one its effect plan picks.
 This renders one pixel of the first sample scene that needs each build, in this process (no Ray),
 which compiles it into ``NUMBA_CACHE_DIR`` (set from ``TILERENDER_NUMBA_CACHE`` by ``tracer``).
@@ -14,13 +14,13 @@ import sys
 import time
 from pathlib import Path
 
-from tracer import numba_cache
-from tracer import scene_format as fmt
-from tracer.compile import compile_scene
-from tracer.effects import effect_plan
-from tracer.integrator import KERNELS, kernel_for
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
+from tracer.integrators.effects import effect_plan
+from tracer.integrators.path import KERNELS, kernel_for
+from tracer.kernel import numba_cache
 from tracer.render import render_lines
+from tracer.scene import format as fmt
+from tracer.scene.loader import load_scene
 
 
 def warm(scenes: Path) -> list[str]:

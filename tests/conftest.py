@@ -14,8 +14,8 @@ settings.load_profile("tilerender")
 @pytest.fixture(scope="session")
 def cornell():
     """The compiled Cornell box sample scene."""
-    from tracer.compile import compile_scene
-    from tracer.loader import load_scene
+    from tracer.compiled.scene import compile_scene
+    from tracer.scene.loader import load_scene
 
     return compile_scene(load_scene(CORNELL))
 

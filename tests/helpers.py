@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from tracer import bvh
+from tracer.geometry import bvh
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"
@@ -155,9 +155,9 @@ def project(camera, points: np.ndarray) -> np.ndarray:
 
 def compile_dict(data: dict, directory: Path = SCENES):
     """Compile a scene given as a tilerender/1 dict (mesh paths relative to ``directory``)."""
-    from tracer.compile import compile_scene
-    from tracer.loader import scene_from_file_model
-    from tracer.scene_format import SceneFile
+    from tracer.compiled.scene import compile_scene
+    from tracer.scene.format import SceneFile
+    from tracer.scene.loader import scene_from_file_model
 
     return compile_scene(scene_from_file_model(SceneFile.model_validate(data), directory))
 
@@ -165,7 +165,7 @@ def compile_dict(data: dict, directory: Path = SCENES):
 def render_passes(scene, passes: int, spp: int, camera=None, **changes) -> np.ndarray:
     """``passes`` independent renders over disjoint sample ranges, float64 (K, H, W, 3)."""
     from tracer.render import render_image
-    from tracer.scene_format import override
+    from tracer.scene.format import override
 
     settings = override(scene.render, spp=spp, **changes)
     return np.stack(

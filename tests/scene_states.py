@@ -1,9 +1,9 @@
-"""Small scene states built directly from ``tracer.scene_model``, and a deep comparison."""
+"""Small scene states built directly from ``tracer.scene.model``, and a deep comparison."""
 
 import numpy as np
 
-from tracer import scene_format as fmt
-from tracer.scene_model import (
+from tracer.scene import format as fmt
+from tracer.scene.model import (
     Animation,
     CameraKey,
     Mesh,

@@ -18,7 +18,7 @@ def test_scene_schema_is_current():
 
 def test_sample_scenes_follow_the_schema():
     """Every sample scene.json validates against the exported schema's model."""
-    from tracer.scene_format import SceneFile
+    from tracer.scene.format import SceneFile
 
     scenes = sorted((ROOT / "scenes").glob("*/scene.json"))
     assert len(scenes) >= 3
@@ -43,7 +43,7 @@ def test_scene_format_fragments_validate():
     scene (the animation fragment is checked in tests/tracer/test_scene_animation.py)."""
     import re
 
-    from tracer.scene_format import SceneFile
+    from tracer.scene.format import SceneFile
 
     text = (ROOT / "docs" / "scene-format.md").read_text(encoding="utf-8")
     blocks = [json.loads(b) for b in re.findall(r"```json\n(.*?)```", text, re.S)]

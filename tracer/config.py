@@ -13,7 +13,7 @@ BVH_TRAVERSAL_COST = 1.0
 BVH_INTERSECT_COST = 1.0
 BVH_REBUILD_THRESHOLD = 1.3
 """After a refit, subtrees whose normalised SAH cost grew past this factor of its value when
-they were built are rebuilt (Reiter's 1.3; see tracer.bvh_update). 0 = always rebuild the
+they were built are rebuilt (Reiter's 1.3; see tracer.geometry.bvh_update). 0 = always rebuild the
 whole tree, ``math.inf`` = only refit."""
 BVH_MAX_BUILD_DEPTH = 48
 """Below this depth the builder stops trusting SAH and splits at the index median, which bounds
@@ -43,7 +43,7 @@ MAX_ENVIRONMENT_PIXELS = 16 * 1024 * 1024
 # --- Debug outputs ---------------------------------------------------------------------------
 COST_HEATMAP_MAX = 65536
 """Work per sample (node visits plus triangle tests) shown as the hottest colour of the cost
-heat map (tracer.heatmap); the scale is logarithmic from 0."""
+heat map (tracer.io.heatmap); the scale is logarithmic from 0."""
 
 # --- Kernels ---------------------------------------------------------------------------------
 SPECIALISED_KERNELS = False

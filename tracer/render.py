@@ -1,9 +1,10 @@
 """Public entry points: render a pixel run or a line range, or a whole image with progress.
 
 ``render.integrator`` picks the kernel: ``path``, ``direct`` (a path of two vertices),
-``whitted`` and ``cost`` (the path kernel's work as a heat map, ``tracer.heatmap``) run
-``tracer.integrator`` under the effect plan (``tracer.effects``); ``ao``, ``albedo``,
-``normal`` and ``depth`` run ``tracer.surface_integrators``.
+``whitted`` and ``cost`` (the path kernel's work as a heat map, ``tracer.io.heatmap``) run
+``tracer.integrators.path`` under the effect plan (``tracer.integrators.effects``); ``ao``,
+``albedo``,
+``normal`` and ``depth`` run ``tracer.integrators.surface``.
 
 ``render_pixels`` renders any run [p0, p1) of a frame's pixels in row-major order, and
 ``render_lines`` the line-aligned run [y0 * W, y1 * W): what a tracer runs for its share of a
@@ -18,17 +19,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracer import config, effects, portable
-from tracer import scene_format as fmt
-from tracer.camera import camera_array
-from tracer.compile import CompiledScene
-from tracer.effects import EffectPlan, effect_plan
-from tracer.heatmap import cost_heatmap
-from tracer.integrator import PATH, WHITTED, kernel_for, render_pixels_specialised
-from tracer.lights import light_arrays, scene_fields
-from tracer.scene_arrays import SceneArrays
-from tracer.surface_integrators import OUTPUTS, render_surface
-from tracer.threads import run_parts
+from tracer import config
+from tracer.compiled.arrays import SceneArrays
+from tracer.compiled.scene import CompiledScene
+from tracer.integrators import effects
+from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.path import PATH, WHITTED, kernel_for, render_pixels_specialised
+from tracer.integrators.surface import OUTPUTS, render_surface
+from tracer.io.heatmap import cost_heatmap
+from tracer.kernel.threads import run_parts
+from tracer.maths import portable
+from tracer.scene import format as fmt
+from tracer.shading.camera import camera_array
+from tracer.shading.lights import light_arrays, scene_fields
 
 SAMPLES_PER_CALL = 1 << 18
 """Samples per kernel call in ``render_image``: enough that the threads' shares even out
@@ -93,8 +96,8 @@ def render_lines(
     Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
     sample ranges give independent estimates that average to the larger render. ``threads``
     defaults to every CPU this process may use. ``plan`` is the effect plan (default: the one
-    ``tracer.effects.effect_plan`` makes of the scene and settings); ``specialised`` runs a
-    kernel compiled for that plan instead of the one with runtime flags (default:
+    ``tracer.integrators.effects.effect_plan`` makes of the scene and settings); ``specialised``
+    runs a kernel compiled for that plan instead of the one with runtime flags (default:
     ``config.SPECIALISED_KERNELS``).
     """
     camera = camera or scene.camera

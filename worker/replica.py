@@ -2,7 +2,7 @@
 
 The cluster owns the authoritative scene graph; a replica starts from a snapshot and applies
 commit buffers in version order. Each version compiles incrementally from the previous one
-(``tracer.compile``): unchanged meshes, pools and BVHs are shared, moved vertices refit, and
+(``tracer.compiled.scene``): unchanged meshes, pools and BVHs are shared, moved vertices refit, and
 only the top level is rebuilt for rigid motion. Compiled versions are immutable, and the
 replica keeps the ones frames may still be using, so a frame in flight keeps the version it
 was scheduled at while newer commits are applied (double buffering).
@@ -13,12 +13,12 @@ from collections import OrderedDict
 import numpy as np
 
 from tracer import config
-from tracer.commit_codec import decode_commit, decode_state
-from tracer.compile import CompiledScene, compile_scene
+from tracer.compiled.scene import CompiledScene, compile_scene
 from tracer.errors import SceneError
-from tracer.query import SceneHits, scene_hits
-from tracer.scene_model import SceneState
-from tracer.scene_ops import Commit, CommitGap, apply_commit
+from tracer.geometry.query import SceneHits, scene_hits
+from tracer.scene.codec import decode_commit, decode_state
+from tracer.scene.model import SceneState
+from tracer.scene.ops import Commit, CommitGap, apply_commit
 
 KEEP_VERSIONS = 2
 """Compiled versions kept: the one rendering and the one being prepared."""
@@ -33,7 +33,8 @@ class SceneReplica:
         keep: int = KEEP_VERSIONS,
         rebuild_threshold: float = config.BVH_REBUILD_THRESHOLD,
     ):
-        """``rebuild_threshold``: what deformed meshes get (``tracer.compile.compile_scene``)."""
+        """``rebuild_threshold``: what deformed meshes get
+        (``tracer.compiled.scene.compile_scene``)."""
         self._keep = max(1, keep)
         self._rebuild_threshold = rebuild_threshold
         self._compiled: OrderedDict[int, CompiledScene] = OrderedDict()

@@ -29,14 +29,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracer import numba_cache
-from tracer import scene_format as fmt
-from tracer.effects import effect_plan
+from tracer.accuracy.spot_check import render_spot_checks
 from tracer.errors import SceneError
-from tracer.query import SceneHits
+from tracer.geometry.query import SceneHits
+from tracer.integrators.effects import effect_plan
+from tracer.kernel import numba_cache
+from tracer.kernel.threads import default_threads
 from tracer.render import render_lines, render_pixels
-from tracer.spot_check import render_spot_checks
-from tracer.threads import default_threads
+from tracer.scene import format as fmt
 from worker.line_pool import LinePool
 from worker.remote_pool import PoolLost, RemotePool
 from worker.replica import SceneReplica
@@ -72,7 +72,8 @@ class UnitsResult:
     incarnation: str
     """Changes when Ray restarts the actor (a new process with an empty replica)."""
     effects: dict | None = None
-    """The effect plan the units were rendered with (``tracer.effects.EffectPlan.to_json``)."""
+    """The effect plan the units were rendered with
+    (``tracer.integrators.effects.EffectPlan.to_json``)."""
     rays: np.ndarray | None = None
     """int64 (u1 - u0,): rays traced per unit (camera, continuation, shadow and occlusion)."""
     spans: int = 1
@@ -155,7 +156,7 @@ class Tracer:
         return replica
 
     def sync_snapshot(self, blob: bytes, scene: str = DEFAULT_SCENE) -> int:
-        """Start ``scene`` over from an encoded snapshot (``tracer.commit_codec.encode_state``);
+        """Start ``scene`` over from an encoded snapshot (``tracer.scene.codec.encode_state``);
         returns the version now held."""
         replica = self.replica(scene)
         if replica is None:
@@ -307,7 +308,7 @@ class Tracer:
     ) -> "tuple[np.ndarray, np.ndarray] | OutOfSync":
         """Spot checks of ``pixels`` ((P, 2) y, x) of ``frame`` at ``version`` of ``scene``:
         samples ``[part_start, part_start + part_spp)`` of each part's stream, per pixel
-        (:func:`tracer.spot_check.render_spot_checks`: (PARTS, P, 3) parts and (P,) work),
+        (:func:`tracer.accuracy.spot_check.render_spot_checks`: (PARTS, P, 3) parts and (P,) work),
         reaching the version first like a render call."""
         problem = self._reach(scene, version, commits, snapshot)
         if problem is not None:
@@ -324,7 +325,7 @@ class Tracer:
         numba's on-disk cache when another process compiled it) before the first frame.
         Returns the seconds taken, numba's cache hits and misses for the kernel, the cache
         directory, and this process's pid and node."""
-        from tracer.integrator import kernel_for
+        from tracer.integrators.path import kernel_for
 
         if not self.replicas:
             raise SceneError("warm_up needs a scene: send a snapshot first")

@@ -18,7 +18,7 @@ from api.service import job_dir, job_frames, job_state
 from api.store import TERMINAL
 from cluster.progressive import PARTS
 from tracer.errors import format_validation_error
-from tracer.image_io import read_image, write_image
+from tracer.io.images import read_image, write_image
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 

@@ -22,9 +22,9 @@ from api.models import (
     errors,
 )
 from api.scenes import SceneEntry, extract_bundle, find_entry, safe_relative
-from tracer import portable
-from tracer import scene_format as fmt
-from tracer.loader import MESH_SUFFIXES
+from tracer.maths import portable
+from tracer.scene import format as fmt
+from tracer.scene.loader import MESH_SUFFIXES
 
 router = APIRouter(prefix="/scenes", tags=["scenes"])
 
@@ -268,7 +268,7 @@ async def patch_scene(scene_id: str, body: CommitRequest, ctx: Ctx) -> CommitPub
 
 def pixel_ray(camera: fmt.Camera, x: float, y: float, width: int, height: int):
     """The primary ray through film position (x, y) (pixels from the top-left corner), the
-    way tracer.camera builds it."""
+    way tracer.shading.camera builds it."""
     position = np.asarray(camera.position, np.float64)
     forward = np.asarray(camera.look_at, np.float64) - position
     forward /= portable.norm(forward)

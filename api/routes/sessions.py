@@ -16,8 +16,8 @@ from api.errors import ApiError
 from api.models import CameraPose, SessionCreate, SessionPublic, SessionsPublic, errors
 from api.scenes import new_id
 from api.service import LiveSession, set_camera_now
-from tracer import scene_format as fmt
 from tracer.errors import format_validation_error
+from tracer.scene import format as fmt
 
 router = APIRouter(prefix="/sessions", tags=["sessions"])
 

@@ -275,10 +275,10 @@ class References:
     def image(self, scene_key: str, request: dict) -> np.ndarray:
         import dataclasses
 
-        from tracer import scene_format as fmt
-        from tracer.compile import compile_scene
-        from tracer.loader import load_scene
+        from tracer.compiled.scene import compile_scene
         from tracer.render import render_image
+        from tracer.scene import format as fmt
+        from tracer.scene.loader import load_scene
 
         key = (scene_key, *(request.get(k) for k in ("width", "height", "spp", "seed")))
         if key not in self.cache:

@@ -6,7 +6,7 @@ import pytest
 
 from api.scenes import summary
 from tests.helpers import tiny_scene, write_json
-from tracer.loader import load_scene
+from tracer.scene.loader import load_scene
 
 
 @pytest.mark.parametrize(

@@ -20,9 +20,9 @@ from tests.api.conftest import (
     zip_bytes,
 )
 from tests.helpers import GLTF_BOX, SCENES, tiny_scene
-from tracer.compile import compile_scene
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
+from tracer.scene.loader import load_scene
 
 
 def test_health_ready_metrics_openapi(client):
@@ -130,7 +130,7 @@ def test_still_job_equals_render_image_and_formats(client, tmp_path):
     path = tmp_path / "scene.json"
     path.write_bytes(tiny_json())
     state = load_scene(path)
-    from tracer import scene_format as fmt
+    from tracer.scene import format as fmt
 
     camera = fmt.override(state.camera, width=16, height=10)
     settings = fmt.override(state.render, spp=3)
@@ -158,7 +158,7 @@ def test_textured_bundle_renders_like_the_library(client):
     job = wait_job(client, r.json()["id"])
     assert job["status"] == "done", job
     npy = np.load(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/result?format=npy").content))
-    from tracer import scene_format as fmt
+    from tracer.scene import format as fmt
 
     state = load_scene(folder / "scene.json")
     camera = fmt.override(state.camera, width=24, height=18)

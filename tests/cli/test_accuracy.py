@@ -25,10 +25,10 @@ from cli.accuracy import (
 from cli.accuracy_reference import block_mean, independent_reference, own_reference
 from cli.accuracy_report import REPORT_END, REPORT_START, load_previous, splice, write_report
 from tests.helpers import CORNELL, SCENES
-from tracer import scene_format as fmt
-from tracer.compile import compile_scene
-from tracer.error_estimate import noise_floor
-from tracer.loader import load_scene
+from tracer.accuracy.error_estimate import noise_floor
+from tracer.compiled.scene import compile_scene
+from tracer.scene import format as fmt
+from tracer.scene.loader import load_scene
 
 MAX_SPP = 64
 

@@ -16,11 +16,11 @@ from cli import main as cli_main
 from cluster.scene_graph import SceneGraph
 from tests.helpers import GLTF_BOX, ROOT, tiny_scene, write_json
 from tracer import config
-from tracer.compile import compile_scene
-from tracer.image_io import read_image
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
+from tracer.io.images import read_image
 from tracer.render import render_image, render_lines
-from tracer.scene_format import override
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
 
 TILERENDER = Path(sys.executable).with_name("tilerender")
 
@@ -352,7 +352,7 @@ def test_render_integrator_option(capsys, tmp_path, tiny_scene_file):
 
 
 def test_cli_integrators_are_the_formats():
-    from tracer.scene_format import INTEGRATORS
+    from tracer.scene.format import INTEGRATORS
 
     assert cli_main.INTEGRATORS == INTEGRATORS
 

@@ -10,11 +10,11 @@ from PIL import Image
 
 from cli import main as cli_main
 from tests.helpers import tiny_scene, write_json
-from tracer.compile import compile_scene
-from tracer.image_io import read_image
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
+from tracer.io.images import read_image
 from tracer.render import render_image
-from tracer.scene_format import override
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
 
 SIZE = ["--width", 16, "--height", 12, "--threads", 1]
 

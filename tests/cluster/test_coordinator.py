@@ -26,10 +26,10 @@ from cluster.coordinator import INLINE_COMMITS, ClusterError, Coordinator, gap_i
 from cluster.scene_graph import SceneGraph
 from tests.scene_states import translation
 from tests.worker.test_replica import CAMERA, studio
-from tracer.commit_codec import encode_commit, encode_state
-from tracer.compile import compile_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image, render_lines
-from tracer.scene_model import Animation, CameraKey, NodeKey, SceneState
+from tracer.scene.codec import encode_commit, encode_state
+from tracer.scene.model import Animation, CameraKey, NodeKey, SceneState
 from worker import line_pool
 from worker.tracer_actor import UnitsResult
 from worker.work_units import WorkUnits

@@ -29,8 +29,8 @@ from tests.tracer.test_cross_cpu import (
     pytestmark,  # noqa: F401 - the same platform condition
     query_rays,
 )
-from tracer.loader import load_scene
-from tracer.scene_format import override
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
 
 WIDTH, HEIGHT, SPP = 48, 32, 2
 

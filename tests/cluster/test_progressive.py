@@ -20,11 +20,11 @@ from cluster.progressive import (
 )
 from cluster.scene_graph import SceneGraph
 from tests.worker.test_replica import studio
-from tracer.compile import compile_scene
-from tracer.error_estimate import PARTS, SPOT_CHECK_FACTOR, rel_mse
+from tracer.accuracy.error_estimate import PARTS, SPOT_CHECK_FACTOR, rel_mse
+from tracer.accuracy.spot_check import render_spot_checks
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
-from tracer.scene_format import override
-from tracer.spot_check import render_spot_checks
+from tracer.scene.format import override
 
 W, H = 16, 12
 MU = 0.5

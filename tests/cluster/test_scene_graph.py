@@ -9,8 +9,8 @@ import pytest
 
 from cluster.scene_graph import SceneGraph
 from tests.scene_states import small_state, spinning_animation, translation
-from tracer import scene_ops as so
 from tracer.errors import SceneError
+from tracer.scene import ops as so
 
 
 def move(node, x: float) -> dict:

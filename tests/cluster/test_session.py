@@ -16,7 +16,7 @@ from cluster.session import (
     camera_motion,
 )
 from tests.worker.test_replica import CAMERA, studio
-from tracer.compile import compile_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
 
 

@@ -7,12 +7,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests import naive
-from tracer import bvh, config
-from tracer.compile import STATIC_KEY, compile_scene
-from tracer.loader import MeshData, SceneData
-from tracer.query import scene_hits
-from tracer.raycast import any_hits, closest_hits
-from tracer.scene_format import Camera, DiffuseMaterial, RenderSettings
+from tracer import config
+from tracer.compiled.scene import STATIC_KEY, compile_scene
+from tracer.geometry import bvh
+from tracer.geometry.query import scene_hits
+from tracer.geometry.raycast import any_hits, closest_hits
+from tracer.scene.format import Camera, DiffuseMaterial, RenderSettings
+from tracer.scene.loader import MeshData, SceneData
 
 
 def accelerate(tri_verts):

@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from tracer import bvh
-from tracer.raycast import closest_hits
+from tracer.geometry import bvh
+from tracer.geometry.raycast import closest_hits
 
 embree_scene = pytest.importorskip("embreex.rtcore_scene")
 embree_mesh = pytest.importorskip("embreex.mesh_construction")

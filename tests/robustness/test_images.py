@@ -8,11 +8,11 @@ import pytest
 
 from tests.stats import pass_statistics, welch_pixel_test
 from tests.tracer.test_cornell_reference import image_mean_z
-from tracer.compile import compile_scene
-from tracer.loader import MeshData, SceneData, load_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
-from tracer.scene_format import Camera, DiffuseMaterial, RenderSettings, override
-from tracer.shapes import box, plane, rectangle
+from tracer.scene.format import Camera, DiffuseMaterial, RenderSettings, override
+from tracer.scene.loader import MeshData, SceneData, load_scene
+from tracer.scene.shapes import box, plane, rectangle
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_SCENES = sorted(ROOT.glob("scenes/*/scene.json")) + sorted(ROOT.glob("scenes/*/*.gltf"))

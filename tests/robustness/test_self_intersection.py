@@ -1,15 +1,16 @@
 """Spawned rays never hit their own surface, at any scale and far from the origin.
 
 Hit points come from the real intersector (a ray shot at each triangle), and new rays leave them
-exactly as the path tracer spawns them (``tracer.raycast.surface``: offset past the hit point's
-error bound along the geometric normal). No epsilon is tuned per scene.
+exactly as the path tracer spawns them (``tracer.geometry.raycast.surface``: offset past the hit
+point's error bound along the geometric normal). No epsilon is tuned per scene.
 """
 
 import numpy as np
 import pytest
 
-from tracer import bvh, config
-from tracer.raycast import any_hits, closest_hits, surface
+from tracer import config
+from tracer.geometry import bvh
+from tracer.geometry.raycast import any_hits, closest_hits, surface
 
 SCALES = [1e-4, 1e-2, 1.0, 1e2, 1e4, 1e5]
 OFFSETS = [0.0, 1e2, 1e4, 1e6]

@@ -17,8 +17,8 @@ import pytest
 import trimesh
 
 from tests.meshes import jittered_icosphere, menger_cells, menger_sponge
-from tracer import bvh
-from tracer.raycast import closest_hits
+from tracer.geometry import bvh
+from tracer.geometry.raycast import closest_hits
 
 T_TOLERANCE = 1e-12
 

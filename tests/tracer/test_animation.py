@@ -1,4 +1,4 @@
-"""Keyframe evaluation (``tracer.animation``): exact at keys, clamped outside, continuous,
+"""Keyframe evaluation (``tracer.scene.animation``): exact at keys, clamped outside, continuous,
 slerp on the short arc, and the ops that pose a scene at a frame."""
 
 import dataclasses
@@ -11,11 +11,11 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from tests.scene_states import small_state, spinning_animation, translation
-from tracer import animation as an
-from tracer import scene_format as fmt
-from tracer import scene_ops as so
 from tracer.errors import SceneError
-from tracer.scene_model import Animation, CameraKey, NodeKey
+from tracer.scene import animation as an
+from tracer.scene import format as fmt
+from tracer.scene import ops as so
+from tracer.scene.model import Animation, CameraKey, NodeKey
 
 coordinate = st.floats(-100, 100, allow_nan=False)
 vec3 = st.tuples(coordinate, coordinate, coordinate)

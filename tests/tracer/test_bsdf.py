@@ -1,6 +1,6 @@
-"""BSDFs (``tracer.bsdf``, ``tracer.microfacet``, ``tracer.fresnel``): sampling agrees with the
-claimed densities (chi-square), sample weights agree with evaluation, reciprocity, Fresnel
-values, and the delta lobes' directions and probabilities."""
+"""BSDFs (``tracer.shading.bsdf``, ``tracer.shading.microfacet``, ``tracer.shading.fresnel``):
+sampling agrees with the claimed densities (chi-square), sample weights agree with evaluation,
+reciprocity, Fresnel values, and the delta lobes' directions and probabilities."""
 
 import itertools
 import math
@@ -10,16 +10,16 @@ import pytest
 from numba import njit
 
 from tests.chi2 import chi2_test, level
-from tracer import bsdf, materials
-from tracer import scene_format as fmt
-from tracer.fresnel import fr_conductor, fr_dielectric
-from tracer.materials import (
+from tracer.scene import format as fmt
+from tracer.shading import bsdf, materials
+from tracer.shading.fresnel import fr_conductor, fr_dielectric
+from tracer.shading.materials import (
     coat_tables,
     conductor_index_from_reflectance,
     gauss_legendre,
     material_row,
 )
-from tracer.microfacet import (
+from tracer.shading.microfacet import (
     ggx_dielectric_albedo,
     ggx_sample_visible_normal,
     ggx_visible_normal_pdf,

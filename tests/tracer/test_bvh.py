@@ -1,7 +1,7 @@
 """The BVH builder and its traversal layout: structure, bounds, coverage, depth, determinism.
 
-Every property is checked on both layouts (``tracer.bvh`` docstring): the canonical Wald nodes
-the builder writes and the two-boxes-per-node nodes the kernels read.
+Every property is checked on both layouts (``tracer.geometry.bvh`` docstring): the canonical Wald
+nodes the builder writes and the two-boxes-per-node nodes the kernels read.
 """
 
 import math
@@ -16,7 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.helpers import ROOT, SOUP_KINDS, box, icosphere, soup
-from tracer import bvh, config
+from tracer import config
+from tracer.geometry import bvh
 
 
 def depth_bound(n: int) -> int:
@@ -364,7 +365,7 @@ def test_traversal_stays_in_its_stack(tmp_path):
         import numpy as np
         from tests.tracer.test_bvh import deep_stack_triangles
         from tests.helpers import traversal
-        from tracer.raycast import closest_hits
+        from tracer.geometry.raycast import closest_hits
 
         tris = deep_stack_triangles(2_100_000)
         hits = closest_hits(traversal(tris), [[-1.0, 0, 0]], [[1.0, 0, 0]], threads=1)

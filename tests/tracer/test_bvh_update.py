@@ -1,4 +1,4 @@
-"""Refit and selective rebuild of a deformed mesh BVH (tracer.bvh_update)."""
+"""Refit and selective rebuild of a deformed mesh BVH (tracer.geometry.bvh_update)."""
 
 import math
 
@@ -8,8 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.meshes import jittered_icosphere
-from tracer import bvh, bvh_update, config
-from tracer.raycast import closest_hits
+from tracer import config
+from tracer.geometry import bvh, bvh_update
+from tracer.geometry.raycast import closest_hits
 
 
 def icosphere_triangles(subdivisions: int = 3, seed: int = 0) -> np.ndarray:

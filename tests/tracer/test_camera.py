@@ -7,11 +7,17 @@ import math
 import numpy as np
 
 from tests.helpers import CORNELL, compile_dict, render_passes
-from tracer.camera import FOCUS_DISTANCE, LENS_RADIUS, camera_array, primary_ray, thin_lens_ray
-from tracer.compile import compile_scene
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
-from tracer.scene_format import override
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
+from tracer.shading.camera import (
+    FOCUS_DISTANCE,
+    LENS_RADIUS,
+    camera_array,
+    primary_ray,
+    thin_lens_ray,
+)
 
 
 def test_zero_aperture_is_the_pinhole():

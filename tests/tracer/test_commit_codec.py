@@ -1,4 +1,4 @@
-"""The binary codec of commits and snapshots (``tracer.commit_codec``): exact round trips, raw
+"""The binary codec of commits and snapshots (``tracer.scene.codec``): exact round trips, raw
 binary arrays, and refusal of anything malformed, truncated or corrupted."""
 
 import dataclasses
@@ -13,11 +13,11 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from tests.scene_states import assert_states_equal, small_state, spinning_animation
-from tracer import commit_codec as codec
-from tracer import scene_format as fmt
-from tracer import scene_ops as so
 from tracer.errors import SceneError
-from tracer.scene_model import make_mesh
+from tracer.scene import codec
+from tracer.scene import format as fmt
+from tracer.scene import ops as so
+from tracer.scene.model import make_mesh
 
 
 def craft(header: dict | bytes, payload: bytes = b"") -> bytes:

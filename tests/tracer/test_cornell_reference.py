@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from tests.stats import pass_statistics, welch_pixel_test
-from tracer.compile import compile_scene
-from tracer.image_io import write_image
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
+from tracer.io.images import write_image
 from tracer.render import render_image
-from tracer.scene_format import override
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
 
 SCENE_DIR = Path(__file__).resolve().parents[2] / "scenes" / "cornell-box"
 REFERENCE_PASSES = 16

@@ -72,7 +72,7 @@ def process_config() -> dict:
     numpy's dispatch, the tracer sources and the kernel cache."""
     from numba.core.registry import cpu_target
 
-    from tracer import numba_cache
+    from tracer.kernel import numba_cache
 
     _, cpu, features = cpu_target.target_context.codegen().magic_tuple()
     return {
@@ -117,8 +117,8 @@ def array_digests(scene, camera) -> dict[str, str]:
     and of float64 ray queries against the scene (distance, point, normal): a last-bit
     difference in compilation or in the intersection code shows here even where float32
     pixels round it away."""
-    from tracer.camera import camera_array
-    from tracer.query import scene_hits
+    from tracer.geometry.query import scene_hits
+    from tracer.shading.camera import camera_array
 
     named = {
         "camera": camera_array(
@@ -147,11 +147,11 @@ def render_jobs(jobs: list[dict]) -> tuple[list[np.ndarray], list[dict], dict]:
     """Render each job (scene file, width, height, spp) with the public API; returns the
     float32 images, each scene's digests (its arrays, queries and the render's work per line)
     and the path kernel's cache hits and misses in this process."""
-    from tracer.compile import compile_scene
-    from tracer.integrator import kernel_for
-    from tracer.loader import load_scene
+    from tracer.compiled.scene import compile_scene
+    from tracer.integrators.path import kernel_for
     from tracer.render import effect_plan, render_image
-    from tracer.scene_format import override
+    from tracer.scene.format import override
+    from tracer.scene.loader import load_scene
 
     images, digests, flags = [], [], set()
     for job in jobs:
@@ -315,10 +315,10 @@ def reference(scenes) -> Run:
 
 def test_scenes_use_every_effect(scenes):
     """The harsh scene runs every effect of the path tracer; outdoor all but textures."""
-    from tracer import effects
-    from tracer.compile import compile_scene
-    from tracer.loader import load_scene
+    from tracer.compiled.scene import compile_scene
+    from tracer.integrators import effects
     from tracer.render import effect_plan
+    from tracer.scene.loader import load_scene
 
     plans = {}
     for name, path in scenes.items():

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tracer.render import render_image, render_lines
-from tracer.scene_format import override
+from tracer.scene.format import override
 
 WIDTH, HEIGHT, SPP = 32, 24, 4
 

@@ -1,7 +1,7 @@
-"""The effect plan (``tracer.effects``): its rules on small scenes, the user's switches, and the
-proof that it is free of error: for every sample scene the plan's image agrees with the
-all-effects image (bit for bit at the same seed, and by a Z-test at independent seeds), and in
-a scene that needs an effect, dropping it changes the image (so the plan must keep it)."""
+"""The effect plan (``tracer.integrators.effects``): its rules on small scenes, the user's
+switches, and the proof that it is free of error: for every sample scene the plan's image agrees
+with the all-effects image (bit for bit at the same seed, and by a Z-test at independent seeds),
+and in a scene that needs an effect, dropping it changes the image (so the plan must keep it)."""
 
 import numpy as np
 import pytest
@@ -9,12 +9,12 @@ import pytest
 from cli.commands import REPO_SCENES, sample_scene_files
 from tests.helpers import compile_dict, tiny_scene
 from tests.stats import pass_statistics, welch_pixel_test
-from tracer import effects
-from tracer.compile import compile_scene
-from tracer.effects import ALL, EffectPlan, effect_plan, needed_effects
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
+from tracer.integrators import effects
+from tracer.integrators.effects import ALL, EffectPlan, effect_plan, needed_effects
 from tracer.render import render_image
-from tracer.scene_format import override
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
 
 SAMPLE_SCENES = sample_scene_files(REPO_SCENES)
 SIZE = (48, 32)
@@ -190,8 +190,8 @@ EFFECT_SIZE = (96, 64)
 
 def material_mask(scene, camera, materials) -> np.ndarray:
     """Pixels whose centre sees one of ``materials`` (bool (H, W))."""
-    from tracer.camera import camera_array, primary_ray
-    from tracer.query import scene_hits
+    from tracer.geometry.query import scene_hits
+    from tracer.shading.camera import camera_array, primary_ray
 
     cam = camera_array(camera.position, camera.look_at, camera.up, camera.vfov_deg,
                        camera.width, camera.height)  # fmt: skip

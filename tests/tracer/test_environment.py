@@ -17,21 +17,22 @@ from scipy import stats
 from tests.chi2 import chi2_test, integrate_pdf, level
 from tests.helpers import compile_dict, mean_and_error, render_passes, tiny_scene
 from tests.tracer.test_integrators import agree, passes_with_plan
-from tracer import effects, lights
-from tracer import scene_format as fmt
-from tracer.commit_codec import decode_state, encode_state
-from tracer.effects import EffectPlan, effect_plan, needed_effects
-from tracer.environment import EnvironmentMap
-from tracer.environment_light import (
+from tracer.errors import SceneError
+from tracer.integrators import effects
+from tracer.integrators.effects import EffectPlan, effect_plan, needed_effects
+from tracer.scene import format as fmt
+from tracer.scene.checks import check_state
+from tracer.scene.codec import decode_state, encode_state
+from tracer.scene.environment import EnvironmentMap
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
+from tracer.scene.ops import Commit, apply_commit, parse_ops
+from tracer.shading import lights
+from tracer.shading.environment_light import (
     environment_lookup,
     environment_sample,
     sampling_tables,
 )
-from tracer.errors import SceneError
-from tracer.loader import load_scene
-from tracer.scene_check import check_state
-from tracer.scene_format import override
-from tracer.scene_ops import Commit, apply_commit, parse_ops
 
 ROTATION = 40.0
 COS_R = math.cos(math.radians(ROTATION))

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from tracer.error_estimate import (
+from tracer.accuracy.error_estimate import (
     AMBIGUITY,
     PARTS,
     REL_EPSILON,

@@ -1,4 +1,4 @@
-"""Image files (``tracer.image_io``): exact float round trips for NPY and EXR, sRGB 8-bit PNG,
+"""Image files (``tracer.io.images``): exact float round trips for NPY and EXR, sRGB 8-bit PNG,
 metadata in the file, and atomic writes that never leave a partial or temporary file."""
 
 import json
@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from tracer import image_io
-from tracer.image_io import check_output_path, linear_to_srgb8, read_image, write_image
+from tracer.io import images as image_io
+from tracer.io.images import check_output_path, linear_to_srgb8, read_image, write_image
 
 METADATA = {"renderer": "tilerender", "render": {"spp": 3, "seed": 7}, "note": "caf\u00e9"}
 

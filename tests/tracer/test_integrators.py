@@ -12,13 +12,15 @@ import pytest
 
 from tests.helpers import CORNELL, compile_dict, mean_and_error, render_passes, two_planes
 from tests.stats import pass_statistics, welch_pixel_test
-from tracer import effects, integrator, surface_integrators
-from tracer.compile import compile_scene
-from tracer.effects import EffectPlan, effect_plan
-from tracer.heatmap import cost_heatmap
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
+from tracer.integrators import effects
+from tracer.integrators import path as integrator
+from tracer.integrators import surface as surface_integrators
+from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.io.heatmap import cost_heatmap
 from tracer.render import render_image
-from tracer.scene_format import override
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
 

@@ -1,6 +1,6 @@
-"""Ray queries (``tracer.raycast``) agree with brute force over every triangle (``tests.naive``),
-and handle the awkward rays: zero direction components of either sign, axis-aligned rays along
-box faces, rays parallel to a triangle's plane, bad input."""
+"""Ray queries (``tracer.geometry.raycast``) agree with brute force over every triangle
+(``tests.naive``), and handle the awkward rays: zero direction components of either sign,
+axis-aligned rays along box faces, rays parallel to a triangle's plane, bad input."""
 
 import numpy as np
 import pytest
@@ -10,8 +10,8 @@ from numba import njit
 
 from tests import naive
 from tests.helpers import SOUP_KINDS, box, icosphere, rays_at, soup, traversal
-from tracer import intersect
-from tracer.raycast import any_hits, closest_hits
+from tracer.geometry import intersect
+from tracer.geometry.raycast import any_hits, closest_hits
 
 
 def check_hits_are_consistent(tris, origins, directions, hits, check_point=True):

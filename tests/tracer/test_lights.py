@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from tests.helpers import compile_dict, mean_and_error, render_passes
-from tracer import lights
-from tracer import scene_format as fmt
+from tracer.scene import format as fmt
+from tracer.shading import lights
 
 RHO = 0.6
 SIZE = 16
@@ -40,7 +40,7 @@ def ground_scene(lights_=(), sky=None, max_depth=2):
 
 def footprint_points(sub: int = 12) -> np.ndarray:
     """Ground points (y = 0) under ``sub`` x ``sub`` film positions per pixel, (H, W, sub*sub,
-    3), by the pinhole model of ``tracer.camera``."""
+    3), by the pinhole model of ``tracer.shading.camera``."""
     camera = fmt.Camera(**CAMERA)
     pos = np.array(camera.position)
     forward = np.array(camera.look_at) - pos
@@ -239,7 +239,7 @@ def test_the_sun_disc_is_seen():
 
 
 def test_selection_weights():
-    """Selection weights follow pbrt-v4's light powers over pi (docs in tracer.lights)."""
+    """Selection weights follow pbrt-v4's light powers over pi (docs in tracer.shading.lights)."""
     table = lights.build_light_table(
         [],
         np.zeros((0, 3), np.float32),

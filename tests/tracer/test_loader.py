@@ -1,4 +1,5 @@
-"""Loading scenes from disk (``tracer.loader``) and compiling them (``tracer.compile``).
+"""Loading scenes from disk (``tracer.scene.loader``) and compiling them
+(``tracer.compiled.scene``).
 
 Valid scenes load; every bad input raises SceneError with a one-line message naming the
 problem (docs/scene-format.md, "What the loader checks"); a mesh file alone is a scene with a
@@ -26,13 +27,13 @@ from tests.helpers import (
     write_json,
     write_mesh,
 )
-from tracer import scene_format as fmt
-from tracer.camera import camera_array, primary_ray
-from tracer.compile import STATIC_KEY, compile_scene, static_key
+from tracer.compiled.scene import STATIC_KEY, compile_scene, static_key
+from tracer.compiled.zero_area import zero_area_mask
 from tracer.errors import SceneError
-from tracer.loader import DEFAULT_LIGHT, MAX_SCENE_FILE_BYTES, framing_camera, load_scene
 from tracer.render import render_lines
-from tracer.zero_area import zero_area_mask
+from tracer.scene import format as fmt
+from tracer.scene.loader import DEFAULT_LIGHT, MAX_SCENE_FILE_BYTES, framing_camera, load_scene
+from tracer.shading.camera import camera_array, primary_ray
 
 
 def load_error(path) -> str:

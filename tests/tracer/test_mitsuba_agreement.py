@@ -1,7 +1,7 @@
 """tilerender agrees with Mitsuba 3 on the sample scenes and the cross-check scenes.
 
-``bench/mitsuba_references.py`` exported each scene (``tracer/mitsuba_export.py``), rendered it
-with Mitsuba 3 in 16 independent passes and stored ``mitsuba_mean.npy``,
+``bench/mitsuba_references.py`` exported each scene (``tracer/crosscheck/mitsuba_export.py``),
+rendered it with Mitsuba 3 in 16 independent passes and stored ``mitsuba_mean.npy``,
 ``mitsuba_var_of_mean.npy`` and ``mitsuba.json`` next to it; Mitsuba is not needed here. We
 render the scene at 1/k of the reference's size (with a box filter, the mean of k x k reference
 pixels is the reference of our pixel) in passes over disjoint sample ranges, so both
@@ -38,13 +38,13 @@ from scipy import stats
 
 from tests.stats import pass_statistics, sidak, welch_pixel_test
 from tests.xml_compare import xml_differences
-from tracer import scene_format as fmt
-from tracer.camera import camera_array
-from tracer.compile import compile_scene
-from tracer.loader import load_scene
-from tracer.mitsuba_export import export_scene, scene_inputs_digest
-from tracer.query import scene_hits
+from tracer.compiled.scene import compile_scene
+from tracer.crosscheck.mitsuba_export import export_scene, scene_inputs_digest
+from tracer.geometry.query import scene_hits
 from tracer.render import render_image
+from tracer.scene import format as fmt
+from tracer.scene.loader import load_scene
+from tracer.shading.camera import camera_array
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 EXPORT_FILE = "mitsuba_export.xml"

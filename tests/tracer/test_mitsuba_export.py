@@ -14,15 +14,15 @@ import pytest
 import trimesh
 from PIL import Image
 
-from tracer import mitsuba_export as mx
-from tracer import scene_format as fmt
-from tracer.environment_light import environment_lookup, sampling_tables
-from tracer.image_io import read_image, write_image
-from tracer.loader import SceneData, load_scene
-from tracer.materials import conductor_index_from_reflectance
-from tracer.mitsuba_export import UnsupportedFeature, export_scene
-from tracer.shapes import box, rectangle, sphere
-from tracer.textures import bilinear, srgb_to_linear, texture_table
+from tracer.crosscheck import mitsuba_export as mx
+from tracer.crosscheck.mitsuba_export import UnsupportedFeature, export_scene
+from tracer.io.images import read_image, write_image
+from tracer.scene import format as fmt
+from tracer.scene.loader import SceneData, load_scene
+from tracer.scene.shapes import box, rectangle, sphere
+from tracer.shading.environment_light import environment_lookup, sampling_tables
+from tracer.shading.materials import conductor_index_from_reflectance
+from tracer.shading.textures import bilinear, srgb_to_linear, texture_table
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = [
@@ -41,7 +41,7 @@ SAMPLES = [
 
 def state_of(materials, shapes=None, lights=(), sky=None, camera=None, render=None):
     """A scene of one shape per material (a unit rectangle unless ``shapes`` says otherwise)."""
-    from tracer.loader import MeshData
+    from tracer.scene.loader import MeshData
 
     names = list(materials)
     shapes = shapes or {}
@@ -252,8 +252,8 @@ def test_base_scale_of_a_nearly_smooth_coat_is_mitsubas_sum_against_the_integral
 def test_base_scale_at_roughness_03_uses_the_separable_masking():
     """Separable masking never shadows less than height-correlated: Mitsuba's coat reflects
     less from inside than ours at every cosine, and its Fdr is below our Fdr summed its way."""
-    from tracer.materials import COAT_QUADRATURE, coat_tables, gauss_legendre
-    from tracer.microfacet import ggx_dielectric_albedo
+    from tracer.shading.materials import COAT_QUADRATURE, coat_tables, gauss_legendre
+    from tracer.shading.microfacet import ggx_dielectric_albedo
 
     alpha, ior = 0.09, 1.5
     nodes, weights = gauss_legendre(COAT_QUADRATURE)
@@ -293,8 +293,8 @@ def test_mitsubas_exported_rough_plastic_base_is_ours(tmp_path):
     exported material's base term equals ours up to the transmittance's masking (0.1% at
     roughness 0.3 up to 70 degrees; docs/mitsuba.md)."""
     mi = pytest.importorskip("mitsuba")
-    from tracer import bsdf as ours
-    from tracer.materials import material_row
+    from tracer.shading import bsdf as ours
+    from tracer.shading.materials import material_row
 
     mi.set_variant("scalar_rgb")
 
@@ -763,7 +763,7 @@ def test_winding_numbers_tell_inside_from_outside():
 
 
 def test_the_export_does_not_import_mitsuba():
-    code = "import sys, tracer.mitsuba_export; print('mitsuba' in sys.modules)"
+    code = "import sys, tracer.crosscheck.mitsuba_export; print('mitsuba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 

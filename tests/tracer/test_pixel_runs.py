@@ -11,10 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.helpers import compile_dict
-from tracer import effects
-from tracer.effects import EffectPlan, effect_plan
+from tracer.integrators import effects
+from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.render import render_image, render_lines, render_pixels
-from tracer.scene_format import override
+from tracer.scene.format import override
 
 WIDTH, HEIGHT, SPP = 13, 7, 2
 """A width that is no multiple of ``PIXEL_BLOCK``, so runs and blocks end in mid-line."""

@@ -1,4 +1,5 @@
-"""tracer/portable.py: right, and the same bits whatever BLAS kernel or numpy SIMD dispatch runs."""
+"""tracer/maths/portable.py: right, and the same bits whatever BLAS kernel or numpy SIMD dispatch
+runs."""
 
 import hashlib
 import math
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 from tests.cpu_variants import OPENBLAS_CORES, host_flags, numpy_avx512_targets
-from tracer import portable
+from tracer.maths import portable
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,7 +59,7 @@ def test_edge_cases():
 
 PROBE = """
 import hashlib, math, numpy as np
-from tracer import portable
+from tracer.maths import portable
 rng = np.random.default_rng(3)
 h = hashlib.sha256()
 for _ in range(300):

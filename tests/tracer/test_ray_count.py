@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from tests.helpers import CORNELL, compile_dict, two_planes
-from tracer import effects
-from tracer.compile import compile_scene
-from tracer.effects import EffectPlan, effect_plan
-from tracer.loader import load_scene
+from tracer.compiled.scene import compile_scene
+from tracer.integrators import effects
+from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.render import render_image, render_lines
-from tracer.scene_format import override
+from tracer.scene.format import override
+from tracer.scene.loader import load_scene
 
 SPP = 3
 

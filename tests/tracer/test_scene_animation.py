@@ -1,6 +1,6 @@
-"""The scene file's ``animation`` section (``tracer.scene_format``, ``tracer.loader``).
+"""The scene file's ``animation`` section (``tracer.scene.format``, ``tracer.scene.loader``).
 
-A section loads into an :class:`~tracer.scene_model.Animation` keyed by node id, with every key
+A section loads into an :class:`~tracer.scene.model.Animation` keyed by node id, with every key
 completed from the object's transform or the scene camera; the loaded state is frame 0; the
 last frame reaches the last key exactly; and every bad section is refused at load time with a
 one-line message naming the problem (docs/scene-format.md, "animation").
@@ -17,12 +17,12 @@ import pytest
 
 from cluster.scene_graph import SceneGraph
 from tests.helpers import ROOT, tiny_scene, write_json
-from tracer import animation as an
-from tracer import scene_format as fmt
-from tracer import scene_ops as so
 from tracer.errors import SceneError
-from tracer.loader import animation_from_file, load_scene
-from tracer.scene_model import CameraKey, NodeKey
+from tracer.scene import animation as an
+from tracer.scene import format as fmt
+from tracer.scene import ops as so
+from tracer.scene.loader import animation_from_file, load_scene
+from tracer.scene.model import CameraKey, NodeKey
 
 FLOOR, CUBE, LAMP = 0, 1, 2
 """Node ids of the tiny scene's objects (file order)."""

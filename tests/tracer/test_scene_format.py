@@ -1,4 +1,4 @@
-"""The ``tilerender/1`` models (``tracer.scene_format``): what validates, what is refused, and
+"""The ``tilerender/1`` models (``tracer.scene.format``): what validates, what is refused, and
 how transforms compose (docs/scene-format.md)."""
 
 import numpy as np
@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from tests.helpers import tiny_scene
 from tracer import config
-from tracer import scene_format as fmt
+from tracer.scene import format as fmt
 
 finite = st.floats(-1e3, 1e3, allow_nan=False)
 angle = st.floats(-720.0, 720.0, allow_nan=False)

@@ -1,4 +1,4 @@
-"""Scene operations (``tracer.scene_ops``): what each does, what each refuses and why, structural
+"""Scene operations (``tracer.scene.ops``): what each does, what each refuses and why, structural
 sharing with the previous state, atomicity, and commits."""
 
 import dataclasses
@@ -9,10 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.scene_states import QUAD, TRIANGLE, small_state, spinning_animation, translation
-from tracer import scene_format as fmt
-from tracer import scene_ops as so
 from tracer.errors import SceneError
-from tracer.scene_check import check_state
+from tracer.scene import format as fmt
+from tracer.scene import ops as so
+from tracer.scene.checks import check_state
 
 
 def apply(state, *ops):

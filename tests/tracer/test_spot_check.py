@@ -1,5 +1,5 @@
-"""Spot checks (``tracer.spot_check``): a few pixels rendered again on sample streams of their
-own, one per part. A part is exactly the pixel's render on its stream, over the sample range
+"""Spot checks (``tracer.accuracy.spot_check``): a few pixels rendered again on sample streams of
+their own, one per part. A part is exactly the pixel's render on its stream, over the sample range
 asked for; the streams are not the render's nor each other's; threads change nothing; bad
 pixels and sample counts are refused. The ledger plans checks within their share of the
 render's samples, tops them up from wave to wave, and keeps only what was rendered."""
@@ -7,15 +7,15 @@ render's samples, tops them up from wave to wave, and keeps only what was render
 import numpy as np
 import pytest
 
-from tracer.error_estimate import PARTS, SPOT_CHECK_FACTOR, SPOT_CHECK_SHARE
-from tracer.render import render_pixels
-from tracer.scene_format import override
-from tracer.spot_check import (
+from tracer.accuracy.error_estimate import PARTS, SPOT_CHECK_FACTOR, SPOT_CHECK_SHARE
+from tracer.accuracy.spot_check import (
     SEED_BIT,
     SpotCheckLedger,
     render_spot_checks,
     spot_check_settings,
 )
+from tracer.render import render_pixels
+from tracer.scene.format import override
 
 WIDTH, HEIGHT = 12, 9
 PIXELS = np.array([[4, 6], [0, 0], [8, 11]])

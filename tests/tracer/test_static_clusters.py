@@ -1,14 +1,14 @@
-"""tracer/static_clusters.py: which static nodes share a baked mesh, and the errors that name the
-mesh float32 cannot hold."""
+"""tracer/compiled/static_clusters.py: which static nodes share a baked mesh, and the errors that
+name the mesh float32 cannot hold."""
 
 import numpy as np
 import pytest
 
-from tracer.compile import compile_scene
+from tracer.compiled.scene import compile_scene
+from tracer.compiled.static_clusters import REACH, cluster_nodes, snapped_center
 from tracer.errors import SceneError
-from tracer.loader import MeshData, SceneData
-from tracer.scene_format import Camera, DiffuseMaterial, RenderSettings
-from tracer.static_clusters import REACH, cluster_nodes, snapped_center
+from tracer.scene.format import Camera, DiffuseMaterial, RenderSettings
+from tracer.scene.loader import MeshData, SceneData
 
 
 def boxes(*placed: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray]:

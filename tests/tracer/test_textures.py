@@ -1,6 +1,6 @@
-"""Base-colour textures (``tracer.textures``, ``tracer.mesh_files``): the bilinear lookup against
-a naive oracle, UVs at hits, textured renders of the albedo and path integrators, glTF and
-OBJ/MTL materials, the effect plan's texture rule, snapshots and edits, and bad inputs."""
+"""Base-colour textures (``tracer.shading.textures``, ``tracer.scene.mesh_files``): the bilinear
+lookup against a naive oracle, UVs at hits, textured renders of the albedo and path integrators,
+glTF and OBJ/MTL materials, the effect plan's texture rule, snapshots and edits, and bad inputs."""
 
 import base64
 import io
@@ -14,17 +14,17 @@ from numba import njit
 from PIL import Image
 
 from tests.helpers import SCENES, write_json
-from tracer import effects
-from tracer import scene_format as fmt
-from tracer.commit_codec import decode_state, encode_state
-from tracer.compile import compile_scene
-from tracer.effects import EffectPlan, effect_plan
+from tracer.compiled.scene import compile_scene
 from tracer.errors import SceneError
-from tracer.loader import load_scene
+from tracer.geometry.scene_intersect import scene_closest
+from tracer.integrators import effects
+from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.render import render_image, render_lines
-from tracer.scene_intersect import scene_closest
-from tracer.scene_ops import apply_ops, parse_ops
-from tracer.textures import bilinear, hit_uv, srgb_to_linear, texture_table
+from tracer.scene import format as fmt
+from tracer.scene.codec import decode_state, encode_state
+from tracer.scene.loader import load_scene
+from tracer.scene.ops import apply_ops, parse_ops
+from tracer.shading.textures import bilinear, hit_uv, srgb_to_linear, texture_table
 
 TEXTURED = SCENES / "textured" / "scene.json"
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from tests.worker.test_replica import studio
-from tracer.commit_codec import encode_state
-from tracer.compile import compile_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
+from tracer.scene.codec import encode_state
 from worker.remote_pool import WAIT, PoolTables, RemotePool, remote_tables
 from worker.tracer_actor import Tracer
 

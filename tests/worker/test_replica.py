@@ -9,15 +9,15 @@ from hypothesis import strategies as st
 
 from cluster.scene_graph import SceneGraph
 from tests.scene_states import node, translation
-from tracer import bvh
-from tracer import scene_format as fmt
-from tracer.commit_codec import encode_commit
-from tracer.compile import compile_scene
+from tracer.compiled.scene import compile_scene
 from tracer.errors import SceneError
-from tracer.raycast import closest_hits
+from tracer.geometry import bvh
+from tracer.geometry.raycast import closest_hits
 from tracer.render import render_image
-from tracer.scene_model import SceneState, Sky, make_mesh
-from tracer.scene_ops import CommitGap
+from tracer.scene import format as fmt
+from tracer.scene.codec import encode_commit
+from tracer.scene.model import SceneState, Sky, make_mesh
+from tracer.scene.ops import CommitGap
 from worker.replica import SceneReplica
 
 CAMERA = fmt.Camera(position=(0.0, 3.0, 9.0), look_at=(0.0, 0.5, 0.0), width=32, height=24)
@@ -170,7 +170,7 @@ def test_a_rejected_commit_changes_nothing():
     poisoned = graph.commit([{"op": "remove_node", "node": "box-b"}])
     poisoned = type(poisoned)(poisoned.version, ({"op": "remove_node", "node": "nope"},))
     with pytest.raises(SceneError):
-        from tracer.scene_ops import parse_ops
+        from tracer.scene.ops import parse_ops
 
         replica.apply(
             [type(bad)(poisoned.version, parse_ops([{"op": "remove_mesh", "mesh": "box"}]))]

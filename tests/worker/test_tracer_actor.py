@@ -12,9 +12,9 @@ import ray
 
 from cluster.scene_graph import SceneGraph
 from tests.worker.test_replica import studio
-from tracer.commit_codec import encode_commit, encode_state
-from tracer.compile import compile_scene
+from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
+from tracer.scene.codec import encode_commit, encode_state
 from worker.line_pool import LinePool
 from worker.tracer_actor import MAX_SCENES, OutOfSync, Tracer, UnitsResult, remote_tracer
 from worker.work_units import WorkUnits
@@ -58,7 +58,7 @@ def test_tracer_renders_like_render_image():
     """Any split of the lines, any thread count: the pixels of render_image, bit for bit."""
     state = studio()
     tracer = Tracer("t", cpus=2)
-    assert tracer.threads == 2 and tracer.version() is None
+    assert tracer.kernel.threads == 2 and tracer.version() is None
     assert tracer.sync_snapshot(encode_state(state)) == 0
     expected = reference(state, frame=5, sample_start=3)
     assert np.array_equal(rendered(tracer, 0, frame=5, sample_start=3), expected)

@@ -1,0 +1,1 @@
+"""A scene compiled to the flat arrays the kernels read."""

@@ -1,0 +1,1 @@
+"""Tools that compare tilerender with an independent renderer (tests and bench use them)."""

@@ -1,0 +1,1 @@
+"""numba infrastructure: decorators, the on-disk cache, threads, borrowed views."""

@@ -1,0 +1,1 @@
+"""Arithmetic shared by compilation and kernels: portable sums, vectors, random numbers."""

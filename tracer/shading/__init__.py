@@ -1,0 +1,2 @@
+"""What a hit looks like: camera, sampling, Fresnel, microfacets, BSDFs, materials, textures,
+lights."""
