@@ -12,7 +12,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from tracer.errors import SceneError
+from tracer.errors import SceneError, TilerenderError
 
 log = logging.getLogger("tilerender.api")
 
@@ -34,7 +34,7 @@ CODES = {
 }
 
 
-class ApiError(Exception):
+class ApiError(TilerenderError):
     """An error answered as JSON with ``status``; ``code`` is a short machine-readable word."""
 
     def __init__(

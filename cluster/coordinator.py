@@ -96,6 +96,7 @@ from cluster.scene_graph import SceneGraph
 from cluster.tail import TailPlan
 from tracer.accuracy.error_estimate import PARTS
 from tracer.accuracy.spot_check import SpotCheck
+from tracer.errors import TilerenderError
 from tracer.scene import format as fmt
 from tracer.scene.codec import encode_commit, encode_state
 from tracer.scene.model import SceneState
@@ -130,7 +131,7 @@ by every tracer that needs the same buffer) instead of inside each render call."
 BUFFERS_KEPT = 8
 
 
-class ClusterError(RuntimeError):
+class ClusterError(TilerenderError, RuntimeError):
     """A frame cannot be completed (no tracer left, a range failing again and again), or no
     tracer would start; ``str()`` says which."""
 

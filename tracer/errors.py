@@ -1,9 +1,19 @@
-"""The one exception bad input raises, and the one-line message of a validation error."""
+"""The root of tilerender's errors, the one bad input raises, and a validation error's message.
+
+Every error tilerender raises on purpose derives from :class:`TilerenderError`, whatever layer
+raises it (``cluster.errors``, ``worker``, ``api.errors``, ``cli``); anything else that escapes
+is a bug. Domain errors also derive from the built-in they refine (``ValueError`` for bad input,
+``RuntimeError`` for a cluster that cannot finish), so callers may catch either.
+"""
 
 import pydantic
 
 
-class SceneError(ValueError):
+class TilerenderError(Exception):
+    """Root of tilerender's own errors; ``str()`` is a one-line message for the user."""
+
+
+class SceneError(TilerenderError, ValueError):
     """A scene, mesh or setting that cannot be rendered; ``str()`` is a one-line explanation."""
 
 

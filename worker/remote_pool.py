@@ -26,6 +26,8 @@ methods of :class:`worker.line_pool.LinePool` that those users need.
 import time
 from collections.abc import Iterator, Sequence
 
+from tracer.errors import TilerenderError
+
 WAIT = "wait"
 """What a claim on a table not opened yet answers."""
 WAIT_SECONDS = 0.0005
@@ -85,7 +87,7 @@ def check_chunks(chunks: Sequence[tuple[int, int]]) -> None:
             raise ValueError(f"chunk [{u0}, {u1}) is empty or negative")
 
 
-class PoolLost(RuntimeError):
+class PoolLost(TilerenderError, RuntimeError):
     """The pool actor is gone (its node, or Ray's memory monitor, took it)."""
 
 

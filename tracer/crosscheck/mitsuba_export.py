@@ -20,6 +20,7 @@ from typing import Literal
 import numpy as np
 import trimesh
 
+from tracer.errors import TilerenderError
 from tracer.io.images import write_image
 from tracer.kernel.jit import jit
 from tracer.maths import portable
@@ -61,7 +62,7 @@ internal reflectance (``MI_ROUGH_TRANSMITTANCE_RES``)."""
 DeviationKind = Literal["proxy", "model"]
 
 
-class UnsupportedFeature(ValueError):
+class UnsupportedFeature(TilerenderError, ValueError):
     """A scene feature Mitsuba cannot express (or the export does not handle yet)."""
 
     def __init__(self, feature: str, reason: str) -> None:
