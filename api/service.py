@@ -55,6 +55,7 @@ from cluster.progressive import Goal, ProgressiveFrame, SpotCheck
 from cluster.scene_graph import SceneGraph
 from tracer.errors import SceneError
 from tracer.io.images import linear_to_srgb8, write_image
+from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 from tracer.scene.codec import decode_state, encode_state
 from tracer.scene.model import SceneState
@@ -176,7 +177,9 @@ class JobRun:
         spec = self.current
         camera, render = self._camera_settings(spec)
         if self.mode == "spp":
-            self.inflight = coordinator.submit_frame(spec.number, camera, render, 0, self.graph)
+            self.inflight = coordinator.submit_frame(
+                FrameRequest(spec.number, camera, render, 0), self.graph
+            )
             try:
                 frame = coordinator.wait_frame(self.inflight)
             finally:
@@ -202,15 +205,14 @@ class JobRun:
         t0 = time.monotonic()
         if isinstance(part, SpotCheck):
             pixels, parts, work = coordinator.render_spot_checks(
-                part, spec.number, camera, render, self.graph
+                part, FrameRequest(spec.number, camera, render), self.graph
             )
             p.add_spot_checks(pixels, parts, time.monotonic() - t0, work)
         else:
             self.inflight = coordinator.submit_frame(
-                spec.number,
-                camera,
-                fmt.override(render, spp=part.spp),
-                part.sample_start,
+                FrameRequest(
+                    spec.number, camera, fmt.override(render, spp=part.spp), part.sample_start
+                ),
                 self.graph,
             )
             try:

@@ -52,6 +52,7 @@ from cluster.balance import BALANCERS, CostAware, TracerReport, min_max_cuts
 from cluster.connect import connect, disconnect
 from cluster.coordinator import Coordinator
 from cluster.scene_graph import SceneGraph
+from tracer.request import FrameRequest
 from tracer.scene.loader import load_scene
 from worker.work_units import WorkUnits
 
@@ -77,10 +78,10 @@ def scaling(size: int, spp: int, repeats: int) -> dict:
     images = {}
     try:
         for c in coordinators.values():  # warm-up: kernels loaded, first snapshot compiled
-            c.render_frame(camera=camera, settings=settings)
+            c.render_frame(FrameRequest(camera=camera, settings=settings))
         for _ in range(repeats):
             for name, c in coordinators.items():
-                frame = c.render_frame(camera=camera, settings=settings)
+                frame = c.render_frame(FrameRequest(camera=camera, settings=settings))
                 walls[name].append(frame.wall_seconds)
                 overheads[name].append(frame.overhead_seconds / frame.wall_seconds)
                 images[name] = frame.rgb
@@ -176,7 +177,7 @@ def idle_real(
                     c.use_balancer(name)
             done: dict[str, list] = {name: [] for name in names}
             for name, c in coordinators.items():  # warm-up frame
-                warm = c.render_frame(camera=cameras[0], settings=settings)
+                warm = c.render_frame(FrameRequest(camera=cameras[0], settings=settings))
                 if name == names[0]:
                     recorded.append((warm.units, warm.unit_cost))
             if sequential:
@@ -185,7 +186,7 @@ def idle_real(
                 order = [(k, name) for k in range(frames) for name in names]
             for k, name in order:  # the oracle comes after the first balancer's frame k
                 c = coordinators[name]
-                frame = c.render_frame(frame=k, camera=cameras[k], settings=settings)
+                frame = c.render_frame(FrameRequest(frame=k, camera=cameras[k], settings=settings))
                 done[name].append(frame)
                 if name == names[0]:
                     recorded.append((frame.units, frame.unit_cost))
@@ -272,7 +273,7 @@ def call_costs(width: int, height: int, repeats: int) -> dict:
     camera = orbit_camera(0.0, width, height)
     trips, gaps, fixed = [], [], []
     with Coordinator(SceneGraph(state), tracers=1, cpus_per_tracer=1.0) as c:
-        version = c.render_frame(camera=camera, settings=settings).version
+        version = c.render_frame(FrameRequest(camera=camera, settings=settings)).version
         handle = c.tracer_handle(c.ready[0])
 
         def call(y0: int, y1: int):
@@ -316,8 +317,8 @@ def recovery(size: int, spp: int) -> dict:
     with Coordinator(
         SceneGraph(state), tracers=2, cpus_per_tracer=1.0, balancer="none", straggler_floor=60.0
     ) as c:
-        c.render_frame(camera=camera, settings=settings)
-        clean = c.render_frame(frame=1, camera=camera, settings=settings)
+        c.render_frame(FrameRequest(camera=camera, settings=settings))
+        clean = c.render_frame(FrameRequest(frame=1, camera=camera, settings=settings))
         victim = c.tracers()[1]
         killed_at = {}
 
@@ -328,7 +329,7 @@ def recovery(size: int, spp: int) -> dict:
 
         killer = threading.Thread(target=kill)
         killer.start()
-        failed = c.render_frame(frame=1, camera=camera, settings=settings)
+        failed = c.render_frame(FrameRequest(frame=1, camera=camera, settings=settings))
         done = time.perf_counter()
         killer.join()
         identical = bool((failed.rgb == clean.rgb).all())

@@ -20,6 +20,7 @@ from tracer.io.images import check_output_path, write_image
 from tracer.kernel import numba_cache
 from tracer.kernel.threads import default_threads
 from tracer.render import render_image, render_lines
+from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 from tracer.scene.loader import load_scene
 from tracer.scene.model import SceneState
@@ -410,7 +411,7 @@ def render_still(coordinator, output: Path, args: argparse.Namespace) -> None:
         return
     with _progress(args.quiet) as progress:
         task = progress.add_task(Path(args.scene).name, total=1)
-        done = coordinator.render_frame(0)
+        done = coordinator.render_frame(FrameRequest(0))
         progress.advance(task)
     tracers = len(done.split)
     write_image(output, done.rgb, frame_metadata(done, args, tracers))

@@ -75,7 +75,7 @@ import math
 import time
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -97,6 +97,7 @@ from cluster.tail import TailPlan
 from tracer.accuracy.error_estimate import PARTS
 from tracer.accuracy.spot_check import SpotCheck
 from tracer.errors import TilerenderError
+from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 from tracer.scene.codec import encode_commit, encode_state
 from tracer.scene.model import SceneState
@@ -697,24 +698,19 @@ class Coordinator:
     # Scheduling ------------------------------------------------------------------------------
 
     def submit_frame(
-        self,
-        frame: int = 0,
-        camera: fmt.Camera | None = None,
-        settings: fmt.RenderSettings | None = None,
-        sample_start: int = 0,
-        graph: SceneGraph | None = None,
+        self, request: FrameRequest | None = None, graph: SceneGraph | None = None
     ) -> FrameJob:
-        """Schedule ``frame`` at the current version of ``graph`` (default the coordinator's
-        own) and send every tracer its range (with its commit buffer); returns at once.
-        ``camera`` and ``settings`` default to the scene's at that version."""
+        """Schedule ``request`` (default frame 0 as the scene sees it) at the current version
+        of ``graph`` (default the coordinator's own) and send every tracer its range (with its
+        commit buffer); returns at once. The request's open camera and settings are the
+        scene's at that version."""
         self._drain_orphans()
         self._poll_slots()
         graph = graph or self.graph
         state = graph.state
-        camera = camera or state.camera
-        settings = settings or state.render
-        if frame < 0 or sample_start < 0:
-            raise ValueError("frame and sample_start must be non-negative")
+        request = (request or FrameRequest()).resolved(state)
+        frame, camera, settings = request.frame, request.camera, request.settings
+        sample_start = request.sample_start
         slots = self._schedulable()
         now = time.perf_counter()
         units = WorkUnits.for_tracers(camera.width, camera.height, len(slots))
@@ -943,25 +939,19 @@ class Coordinator:
         self._close_pool(job)
 
     def render_frame(
-        self,
-        frame: int = 0,
-        camera: fmt.Camera | None = None,
-        settings: fmt.RenderSettings | None = None,
-        sample_start: int = 0,
-        graph: SceneGraph | None = None,
+        self, request: FrameRequest | None = None, graph: SceneGraph | None = None
     ) -> Frame:
         """Render one frame at the current version of ``graph`` (default the own graph)."""
-        return self.wait_frame(self.submit_frame(frame, camera, settings, sample_start, graph))
+        return self.wait_frame(self.submit_frame(request, graph))
 
     def render_animation(
         self,
         frames: Iterable[int] | None = None,
-        camera: fmt.Camera | None = None,
-        settings: fmt.RenderSettings | None = None,
-        sample_start: int = 0,
+        request: FrameRequest | None = None,
         pipeline: int = KEEP_VERSIONS,
     ) -> Iterator[Frame]:
-        """Yield the frames of the scene's animation (default all of them), in order. Before
+        """Yield the frames of the scene's animation (default all of them), in order, each as
+        ``request`` with its frame number (default the scene's camera and settings). Before
         frame N is scheduled its pose is committed (``SceneGraph.frame_commit``); up to
         ``pipeline`` frames are in flight (at most ``KEEP_VERSIONS``), so frame N+1's commits
         reach the tracers while frame N renders."""
@@ -969,6 +959,7 @@ class Coordinator:
             animation = self.graph.state.animation
             frames = range(animation.frames if animation is not None else 1)
         depth = max(1, min(pipeline, KEEP_VERSIONS))
+        request = request or FrameRequest()
         upcoming = iter(frames)
         in_flight: list[FrameJob] = []
 
@@ -976,7 +967,7 @@ class Coordinator:
             number = next(upcoming, None)
             if number is not None:
                 self.graph.frame_commit(number)
-                in_flight.append(self.submit_frame(number, camera, settings, sample_start))
+                in_flight.append(self.submit_frame(replace(request, frame=number)))
 
         def top_up() -> None:
             """Submit frames until ``depth`` are in flight (each after the one before it has
@@ -1352,13 +1343,11 @@ class Coordinator:
 
     def render_spot_checks(
         self,
-        request: SpotCheck,
-        frame: int = 0,
-        camera: fmt.Camera | None = None,
-        settings: fmt.RenderSettings | None = None,
+        checks: SpotCheck,
+        request: FrameRequest | None = None,
         graph: SceneGraph | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """A progressive frame's spot checks (``tracer.accuracy.spot_check``) of ``frame`` at the
+        """A progressive frame's spot checks (``tracer.accuracy.spot_check``) of ``request`` at the
         current version of ``graph``, shared out over the ready tracers. Returns ``(pixels,
         parts, work)``: the pixels checked, their (PARTS, P', 3) parts and (P',) work. A
         tracer that fails its share, or has not answered after ``stall_timeout``, drops those
@@ -1366,8 +1355,10 @@ class Coordinator:
         frame."""
         graph = graph or self.graph
         state = graph.state
+        request = (request or FrameRequest()).resolved(state)
+        frame, camera, settings = request.frame, request.camera, request.settings
         slots = self._schedulable()
-        shares = [(s, np.arange(k, len(request.pixels), len(slots))) for k, s in enumerate(slots)]
+        shares = [(s, np.arange(k, len(checks.pixels), len(slots))) for k, s in enumerate(slots)]
         shares = [(s, rows) for s, rows in shares if len(rows)]
 
         def checker(slot: _Slot, rows: np.ndarray):
@@ -1378,9 +1369,9 @@ class Coordinator:
                     commits,
                     camera,
                     settings,
-                    request.pixels[rows],
-                    request.part_spp[rows],
-                    request.part_start[rows],
+                    checks.pixels[rows],
+                    checks.part_spp[rows],
+                    checks.part_start[rows],
                     snapshot,
                     graph.key,
                 )
@@ -1395,7 +1386,7 @@ class Coordinator:
             if isinstance(out, BaseException):
                 log.warning("spot checks on %s failed: %s", slot.id, _first_line(out))
                 continue
-            kept.append(request.pixels[rows])
+            kept.append(checks.pixels[rows])
             parts.append(out[0])
             work.append(out[1])
         return np.concatenate(kept), np.concatenate(parts, axis=1), np.concatenate(work)

@@ -30,6 +30,7 @@ import numpy as np
 
 from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
 from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
+from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
 MAX_PART_SPP = 64
@@ -263,13 +264,15 @@ def render_progressive(
     while (step := progress.next_part()) is not None:
         start = time.monotonic()
         if isinstance(step, SpotCheck):
-            pixels, parts, work = coordinator.render_spot_checks(step, frame, camera, settings)
+            pixels, parts, work = coordinator.render_spot_checks(
+                step, FrameRequest(frame, camera, settings)
+            )
             progress.add_spot_checks(pixels, parts, time.monotonic() - start, work)
             if on_part is not None:
                 on_part(progress, done)
             continue
         done = coordinator.render_frame(
-            frame, camera, fmt.override(settings, spp=step.spp), step.sample_start
+            FrameRequest(frame, camera, fmt.override(settings, spp=step.spp), step.sample_start)
         )
         progress.add_part(done.rgb, time.monotonic() - start, float(done.cost.sum()))
         if on_part is not None:

@@ -27,6 +27,7 @@ import numpy as np
 from cluster.coordinator import Coordinator, Frame
 from cluster.scene_graph import SceneGraph
 from tracer.maths import portable
+from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
 RESOLUTION_SCALES = (1.0, 0.5, 0.25)
@@ -190,7 +191,7 @@ class InteractiveSession:
         )
         start = time.perf_counter()
         frame = self.coordinator.render_frame(
-            frame=self._index, camera=small, settings=settings, graph=self.graph
+            FrameRequest(frame=self._index, camera=small, settings=settings), graph=self.graph
         )
         seconds = time.perf_counter() - start
         self.last_frame = frame

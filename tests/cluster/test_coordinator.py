@@ -28,6 +28,7 @@ from tests.scene_states import translation
 from tests.worker.test_replica import CAMERA, studio
 from tracer.compiled.scene import compile_scene
 from tracer.render import render_image, render_lines
+from tracer.request import FrameRequest
 from tracer.scene.codec import encode_commit, encode_state
 from tracer.scene.model import Animation, CameraKey, NodeKey, SceneState
 from worker import line_pool
@@ -178,7 +179,7 @@ def test_frames_equal_render_image(shared, tracers, balancer):
     for number, edit, sample_start in [(0, None, 0), (1, MOVE, 0), (7, CAMERA_MOVE, 3)]:
         if edit is not None:
             graph.commit([edit])
-        frame = coordinator.render_frame(number, sample_start=sample_start)
+        frame = coordinator.render_frame(FrameRequest(number, sample_start=sample_start))
         assert frame.version == graph.version and frame.frame == number
         assert frame.rgb.dtype == np.float32 and frame.rgb.shape == (24, 32, 3)
         assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
@@ -215,11 +216,11 @@ def test_a_commit_never_leaks_into_a_frame_scheduled_before_it(fresh):
     coordinator = fresh(SceneGraph(studio()), tracers=2, delays=[0.4, 0.4])
     graph = coordinator.graph
     before = graph.state
-    job = coordinator.submit_frame(0)
+    job = coordinator.submit_frame(FrameRequest(0))
     time.sleep(0.1)
     graph.commit([MOVE])
     after = graph.state
-    later = coordinator.submit_frame(1)
+    later = coordinator.submit_frame(FrameRequest(1))
     first, second = coordinator.wait_frame(job), coordinator.wait_frame(later)
     assert (first.version, second.version) == (before.version, after.version)
     assert np.array_equal(first.rgb, reference(before, 0))
@@ -247,9 +248,9 @@ def test_every_frame_of_an_animation_comes_in_order_at_any_pipeline_depth(
     submitted = []
     submit = coordinator.submit_frame
 
-    def recording(number, *args, **kwargs):
-        submitted.append(number)
-        return submit(number, *args, **kwargs)
+    def recording(request, *args, **kwargs):
+        submitted.append(request.frame)
+        return submit(request, *args, **kwargs)
 
     monkeypatch.setattr(coordinator, "submit_frame", recording)
     seen = []
@@ -294,7 +295,7 @@ def test_a_killed_tracer_loses_no_frame_of_an_animation(fresh):
         }
         assert "t1" not in {r.tracer for r in frame.ranges}
     wait_ready(coordinator, "t1")
-    extra = coordinator.render_frame(31)
+    extra = coordinator.render_frame(FrameRequest(31))
     assert np.array_equal(extra.rgb, expected[31])
     back = [r for r in extra.ranges if r.tracer == "t1"]
     assert back and back[0].pid != victim.pid
@@ -310,7 +311,7 @@ def test_sigkill_mid_range_is_split_among_survivors(fresh):
     expected = reference(graph.state, 2)
     victim = coordinator.info("t1")
     ray.get(coordinator.tracer_handle("t1").set_delay.remote(20.0))
-    job = coordinator.submit_frame(2)
+    job = coordinator.submit_frame(FrameRequest(2))
     time.sleep(0.5)
     os.kill(victim.pid, signal.SIGKILL)
     frame = coordinator.wait_frame(job)
@@ -319,7 +320,7 @@ def test_sigkill_mid_range_is_split_among_survivors(fresh):
     assert {r.tracer for r in frame.ranges} == {"t0", "t2"}
     assert {r.kind for r in frame.ranges} >= {"split", "reassigned"}
     wait_ready(coordinator, "t1")
-    again = coordinator.render_frame(3)
+    again = coordinator.render_frame(FrameRequest(3))
     assert np.array_equal(again.rgb, reference(graph.state, 3))
     assert any(r.tracer == "t1" and r.pid != victim.pid for r in again.ranges)
 
@@ -333,13 +334,13 @@ def test_a_straggler_is_duplicated_and_its_late_answer_discarded(fresh):
     handle = coordinator.tracer_handle("t1")
     ray.get(handle.set_delay.remote(2.5))
     start = time.perf_counter()
-    frame = coordinator.render_frame(0)
+    frame = coordinator.render_frame(FrameRequest(0))
     assert time.perf_counter() - start < 2.0
     assert np.array_equal(frame.rgb, reference(graph.state, 0))
     assert frame.duplicates == 1 and frame.failures == 0
     assert {(r.tracer, r.kind) for r in frame.ranges} == {("t0", "split"), ("t0", "duplicate")}
     ray.get(handle.set_delay.remote(0.0))  # runs after the straggling render finished
-    following = coordinator.render_frame(1)
+    following = coordinator.render_frame(FrameRequest(1))
     assert coordinator.stats["stale_discarded"] >= 1
     assert np.array_equal(following.rgb, reference(graph.state, 1))
 
@@ -368,7 +369,7 @@ def test_frames_with_a_dynamic_tail_equal_render_image(shared, tracers, pooled):
         for number, edit, sample_start in [(0, None, 0), (1, MOVE, 0), (7, CAMERA_MOVE, 3)]:
             if edit is not None:
                 graph.commit([edit])
-            frame = coordinator.render_frame(number, sample_start=sample_start)
+            frame = coordinator.render_frame(FrameRequest(number, sample_start=sample_start))
             assert np.array_equal(frame.rgb, reference(graph.state, number, sample_start))
             assert np.array_equal(frame.rays, reference_rays(graph.state, number, sample_start))
             assert_covers(frame)
@@ -411,7 +412,7 @@ def test_the_dynamic_tail_survives_a_kill_in_a_pipelined_animation(fresh, pooled
     )
     assert all(0.0 <= f.idle_percent < 100.0 and 0.0 <= f.span_idle_percent < 100 for f in frames)
     wait_ready(coordinator, "t1")
-    extra = coordinator.render_frame(15)
+    extra = coordinator.render_frame(FrameRequest(15))
     assert np.array_equal(extra.rgb, expected[15])
     assert "t1" in {r.tracer for r in extra.ranges}
 
@@ -425,7 +426,7 @@ def test_the_dynamic_tail_duplicates_a_straggler(fresh, pooled):
     coordinator.balancer = always_tail()
     ray.get(coordinator.tracer_handle("t1").set_delay.remote(2.5))
     start = time.perf_counter()
-    frame = coordinator.render_frame(0)
+    frame = coordinator.render_frame(FrameRequest(0))
     assert time.perf_counter() - start < 2.0
     assert np.array_equal(frame.rgb, reference(graph.state, 0))
     assert frame.duplicates >= 1 and frame.failures == 0
@@ -450,7 +451,7 @@ def test_pool_chunks_a_lost_tracer_held_are_reassigned(fresh):
     coordinator = fresh(graph, tracers=2, straggler_floor=30, delays=[0.5, 20.0])
     coordinator.balancer = always_tail()
     victim = coordinator.info("t1")
-    job = coordinator.submit_frame(4)
+    job = coordinator.submit_frame(FrameRequest(4))
     held = claimed_by_t1(job)
     time.sleep(0.3)
     os.kill(victim.pid, signal.SIGKILL)
@@ -470,7 +471,7 @@ def test_pool_chunks_a_straggler_holds_are_duplicated(fresh):
     coordinator = fresh(graph, tracers=2, straggler_floor=0.3, delays=[0.2, 2.5])
     coordinator.balancer = always_tail()
     start = time.perf_counter()
-    job = coordinator.submit_frame(0)
+    job = coordinator.submit_frame(FrameRequest(0))
     held = claimed_by_t1(job)
     frame = coordinator.wait_frame(job)
     assert time.perf_counter() - start < 2.0
@@ -495,7 +496,7 @@ def test_long_pooled_frames_are_not_taken_for_stragglers(fresh):
     coordinator = fresh(graph, tracers=2, straggler_floor=0.3, delays=[1.0, 1.0])
     coordinator.balancer = always_tail()
     for number in range(2):
-        frame = coordinator.render_frame(number)
+        frame = coordinator.render_frame(FrameRequest(number))
         assert frame.pooled and frame.duplicates == 0
         assert np.array_equal(frame.rgb, reference(graph.state, number))
     assert not pool_files()
@@ -519,7 +520,7 @@ def test_chunks_of_a_pool_the_tracers_cannot_open_are_handed_out_in_calls(fresh,
 
     monkeypatch.setattr(coordinator, "_open_pool", hidden)
     try:
-        frame = coordinator.render_frame(3)
+        frame = coordinator.render_frame(FrameRequest(3))
     finally:
         for path in opened:
             pathlib.Path(path).unlink(missing_ok=True)
@@ -528,7 +529,7 @@ def test_chunks_of_a_pool_the_tracers_cannot_open_are_handed_out_in_calls(fresh,
     assert "reassigned" in kinds and "tail" not in kinds, kinds
     assert_covers(frame)
     monkeypatch.undo()
-    after = coordinator.render_frame(4)
+    after = coordinator.render_frame(FrameRequest(4))
     assert after.pooled and np.array_equal(after.rgb, reference(graph.state, 4))
     assert coordinator._pool_tables is not None  # the actor pool: no file for them
     assert "tail" in {r.kind for r in after.ranges}
@@ -540,12 +541,12 @@ def test_a_frame_given_up_leaves_no_pool_behind(fresh):
     graph = SceneGraph(studio())
     coordinator = fresh(graph, tracers=2, stall_timeout=0.5, delays=[3.0, 3.0])
     coordinator.balancer = always_tail()
-    job = coordinator.submit_frame(0)
+    job = coordinator.submit_frame(FrameRequest(0))
     assert job.pool is not None and pool_files()
     with pytest.raises(ClusterError, match="no tracer answered"):
         coordinator.wait_frame(job)
     assert not pool_files()
-    job = coordinator.submit_frame(1)
+    job = coordinator.submit_frame(FrameRequest(1))
     assert pool_files()
     coordinator.close()
     assert not pool_files()
@@ -566,15 +567,15 @@ def test_gap_idle_percent_counts_waits_between_ranges():
 def test_tracers_join_and_leave_between_frames(fresh):
     graph = SceneGraph(studio())
     coordinator = fresh(graph, tracers=1, cpus_per_tracer=1)
-    first = coordinator.render_frame(0)
+    first = coordinator.render_frame(FrameRequest(0))
     assert [t for t, _, _ in first.split] == ["t0"]
     assert coordinator.add_tracers(1) == ["t1"]
     graph.commit([MOVE])
-    second = coordinator.render_frame(1)
+    second = coordinator.render_frame(FrameRequest(1))
     assert [t for t, _, _ in second.split] == ["t0", "t1"]
     assert {r.tracer for r in second.ranges} == {"t0", "t1"}
     coordinator.remove_tracer("t0")
-    third = coordinator.render_frame(2)
+    third = coordinator.render_frame(FrameRequest(2))
     assert [t for t, _, _ in third.split] == ["t1"]
     for frame, number in [(first, 0), (second, 1), (third, 2)]:
         assert np.array_equal(frame.rgb, reference(graph.state if number else studio(), number))
@@ -585,13 +586,13 @@ def test_tracers_behind_the_log_or_reset_are_resynced(fresh):
     back behind the coordinator's back answers OutOfSync and is resent what it needs."""
     graph = SceneGraph(studio(), log_limit=1)
     coordinator = fresh(graph, tracers=2)
-    coordinator.render_frame(0)
+    coordinator.render_frame(FrameRequest(0))
     for edit in (MOVE, CAMERA_MOVE, {"op": "set_sky", "radiance": [0.2, 0.3, 0.4]}):
         graph.commit([edit])
-    frame = coordinator.render_frame(1)
+    frame = coordinator.render_frame(FrameRequest(1))
     assert np.array_equal(frame.rgb, reference(graph.state, 1))
     ray.get(coordinator.tracer_handle("t0").sync_snapshot.remote(encode_state(studio()), graph.key))
-    frame = coordinator.render_frame(2)
+    frame = coordinator.render_frame(FrameRequest(2))
     assert frame.resyncs >= 1
     assert np.array_equal(frame.rgb, reference(graph.state, 2))
     assert all(t["synced"] == graph.version for t in coordinator.tracers())
@@ -608,7 +609,7 @@ def test_graphs_taking_turns_keep_their_replicas_and_their_pixels(fresh):
         graph = (own, other)[number % 2]
         if number == 2:
             own.commit([MOVE])
-        frame = coordinator.render_frame(number, graph=graph)
+        frame = coordinator.render_frame(FrameRequest(number), graph=graph)
         assert frame.version == graph.version
         assert np.array_equal(frame.rgb, reference(graph.state, number)), number
         if number >= 2:
@@ -626,7 +627,7 @@ def test_a_query_sees_the_graph_at_its_current_version(fresh):
     down = ([[0.5, 3.5, 0.3]], [[0.0, -1.0, 0.0]])
     version, before = coordinator.query(*down, graph=other)
     other.commit([MOVE])
-    coordinator.render_frame(0)  # the tracer last touched another graph
+    coordinator.render_frame(FrameRequest(0))  # the tracer last touched another graph
     version_after, after = coordinator.query(*down, graph=other)
     assert (version, version_after) == (0, 1)
     assert after.t[0] < before.t[0]
@@ -638,12 +639,12 @@ def test_large_commit_buffers_go_through_the_object_store(fresh):
     """A commit buffer over INLINE_COMMITS bytes is put once and shared by reference."""
     graph = SceneGraph(studio())
     coordinator = fresh(graph, tracers=2)
-    coordinator.render_frame(0)
+    coordinator.render_frame(FrameRequest(0))
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.6)
     op = {"op": "replace_mesh", "mesh": "blob", "vertices": sphere.vertices, "faces": sphere.faces}
     commit = graph.commit([op])
     assert len(encode_commit(commit)) > INLINE_COMMITS
-    frame = coordinator.render_frame(1)
+    frame = coordinator.render_frame(FrameRequest(1))
     assert np.array_equal(frame.rgb, reference(graph.state, 1))
     assert list(coordinator._buffers) == [(graph.key, 0, 1)]  # one put for both tracers
 
@@ -789,15 +790,15 @@ def test_a_lost_pool_actor_costs_no_frame_and_no_tracer(headless_cluster):
         coordinator = Coordinator(
             graph, balancer="cost-aware-tail", straggler_floor=30, delays=[0.05, 0.05]
         )
-        frames = [coordinator.render_frame(0)]
+        frames = [coordinator.render_frame(FrameRequest(0))]
         ray.kill(coordinator._pool_tables)  # between frames: the next one finds it dead
-        frames.append(coordinator.render_frame(1))
-        job = coordinator.submit_frame(2)
+        frames.append(coordinator.render_frame(FrameRequest(1)))
+        job = coordinator.submit_frame(FrameRequest(2))
         time.sleep(0.02)  # mid-frame, while the tracers render their heads
         if coordinator._pool_tables is not None:
             ray.kill(coordinator._pool_tables)
         frames.append(coordinator.wait_frame(job))
-        frames += [coordinator.render_frame(k) for k in (3, 4)]
+        frames += [coordinator.render_frame(FrameRequest(k)) for k in (3, 4)]
         for frame in frames:
             assert np.array_equal(frame.rgb, reference(graph.state, frame.frame)), frame.frame
         assert coordinator.stats["failures"] == 0

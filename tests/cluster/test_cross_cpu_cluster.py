@@ -29,6 +29,7 @@ from tests.tracer.test_cross_cpu import (
     pytestmark,  # noqa: F401 - the same platform condition
     query_rays,
 )
+from tracer.request import FrameRequest
 from tracer.scene.format import override
 from tracer.scene.loader import load_scene
 
@@ -66,10 +67,10 @@ def test_tracer_on_another_cpu_renders_the_same_frame(
         line_pool=False,
         straggler_floor=600.0,
     ) as coordinator:
-        alone = coordinator.render_frame(0, camera, settings)
+        alone = coordinator.render_frame(FrameRequest(0, camera, settings))
         (host,) = [t["id"] for t in coordinator.tracers()]
         (other,) = coordinator.add_tracers(1, cpus=1, options={"runtime_env": {"env_vars": env}})
-        both = coordinator.render_frame(0, camera, settings)
+        both = coordinator.render_frame(FrameRequest(0, camera, settings))
         tracers = {t["id"]: t for t in coordinator.tracers()}
         started_with = process_environment(tracers[other]["pid"])
         host_env = process_environment(tracers[host]["pid"])
