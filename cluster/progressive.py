@@ -22,6 +22,8 @@ its next part through a :class:`cluster.coordinator.Coordinator`, and :func:`ren
 repeats that to the end (as the command line does).
 """
 
+from __future__ import annotations
+
 import math
 import time
 from collections.abc import Callable
