@@ -4,7 +4,8 @@ per scene, and its report (``cli.accuracy_report``)."""
 import argparse
 from pathlib import Path
 
-from cli.accuracy import DEFAULT_CACHE, REPO_ROOT, StudyOptions, refresh_time_to, run_study
+from cli.accuracy import DEFAULT_CACHE, REPO_ROOT, StudyOptions, run_study
+from cli.accuracy_metrics import refresh_time_to
 from cli.accuracy_report import load_previous, write_report
 from cli.commands.samples import REPO_SCENES, sample_scene_files
 from cli.errors import UsageError
