@@ -43,6 +43,7 @@ from api.settings import Settings
 from api.store import Store
 from cluster.scene_graph import SceneGraph
 from tracer.errors import SceneError
+from tracer.io.files import write_atomic
 from tracer.maths import portable
 from tracer.scene.codec import decode_commit, decode_state, encode_commit, encode_state
 from tracer.scene.loader import MESH_SUFFIXES, load_scene
@@ -385,7 +386,7 @@ class SceneRepository:
         directory = self.root / scene_id
         (staged / "commits").mkdir()
         state = dataclasses.replace(state, version=0)
-        _write_atomic(staged / "state.tls", encode_state(state))
+        write_atomic(staged / "state.tls", encode_state(state))
         staged.rename(directory)
         self.store.add_scene(scene_id, name, source, str(entry), triangles)
         graph = SceneGraph(state, key=scene_id)
@@ -446,7 +447,7 @@ class SceneRepository:
                     )
             commit = entry.graph.commit(parsed)  # SceneError -> 422, nothing changed
             version = commit.version
-            _write_atomic(
+            write_atomic(
                 entry.directory / "commits" / f"{version}.tlc",
                 encode_commit(Commit(version, commit.ops)),
             )
@@ -459,7 +460,7 @@ class SceneRepository:
 
     def _compact(self, entry: SceneEntry) -> None:
         state = entry.graph.state
-        _write_atomic(entry.directory / "state.tls", encode_state(state))
+        write_atomic(entry.directory / "state.tls", encode_state(state))
         for path in (entry.directory / "commits").glob("*.tlc"):
             if int(path.stem) <= state.version:
                 path.unlink(missing_ok=True)
@@ -490,10 +491,3 @@ class SceneRepository:
 
 def _plausible_id(ident: str) -> bool:
     return bool(re.fullmatch(r"[a-z][0-9a-f]{12}", ident))
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-    tmp.replace(path)

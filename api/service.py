@@ -1,5 +1,7 @@
 """The render service: one thread owns the coordinator; jobs, sessions and calls take turns.
 
+A job's steps are ``api.job_run``'s, a session's state ``api.live_session``'s.
+
 The coordinator is not thread-safe, so exactly one thread, ``tilerender-render``, creates it,
 drives it and closes it. The event loop never waits for it: endpoints read job state from
 SQLite and from the small in-memory progress records this thread updates, and the few
@@ -32,11 +34,8 @@ frame without a result (``resume_jobs``), or are marked ``failed`` with the reas
 import asyncio
 import collections
 import concurrent.futures
-import dataclasses
 import gc
-import io
 import logging
-import os
 import signal
 import threading
 import time
@@ -47,340 +46,25 @@ from typing import Any
 
 import numpy as np
 
+from api.cluster_info import frame_report, renice_local_tracers
 from api.events import EventHub
-from api.scenes import SceneEntry, SceneRepository, _write_atomic
+from api.job_run import JobRun, job_dir
+from api.live_session import LiveSession, encode_jpeg
+from api.scenes import SceneEntry, SceneRepository
 from api.settings import Settings
 from api.store import TERMINAL, Store
-from cluster.progressive import Goal, ProgressiveFrame, SpotCheck
 from cluster.scene_graph import SceneGraph
 from tracer.errors import SceneError
-from tracer.io.images import linear_to_srgb8, write_image
-from tracer.request import FrameRequest
+from tracer.io.files import write_atomic
+from tracer.io.images import write_image
 from tracer.scene import format as fmt
 from tracer.scene.codec import decode_state, encode_state
 from tracer.scene.model import SceneState
 
 log = logging.getLogger("tilerender.api")
 
-SESSION_RENDER_GRACE = 10.0
-"""Seconds a session keeps rendering after its last request when no stream is open."""
 NODE_RESCAN_SECONDS = 5.0
 """How often the render thread looks for Ray nodes without a tracer (nodes that joined)."""
-
-
-def job_dir(settings: Settings, job_id: str) -> Path:
-    return settings.data_dir / "jobs" / job_id
-
-
-# --- Jobs --------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass
-class FrameSpec:
-    number: int
-    camera: fmt.Camera | None
-    """None: the state's camera at that frame (a still, or the scene's keyframes)."""
-
-
-def job_frames(state: SceneState, request: dict) -> list[FrameSpec]:
-    """The frames a job request renders (already validated against the state)."""
-    kind = request.get("kind", "still")
-    if kind == "still":
-        pose = request.get("camera")
-        if pose:
-            changes = {k: v for k, v in pose.items() if v is not None}
-            return [FrameSpec(0, fmt.override(state.camera, **changes))]
-        return [FrameSpec(0, None)]
-    path = request.get("camera_path")
-    if path:
-        return [
-            FrameSpec(
-                i, fmt.override(state.camera, **{k: v for k, v in pose.items() if v is not None})
-            )
-            for i, pose in enumerate(path)
-        ]
-    frames = request.get("frames")
-    if frames is None:
-        frames = list(range(state.animation.frames if state.animation is not None else 1))
-    return [FrameSpec(int(n), None) for n in frames]
-
-
-def job_state(state: SceneState, request: dict) -> SceneState:
-    """The scene as the job renders it: the request's overrides of camera and settings applied
-    to the state (exactly what ``tilerender render`` does with its flags)."""
-    camera = fmt.override(state.camera, width=request.get("width"), height=request.get("height"))
-    render = fmt.override(
-        state.render,
-        spp=request.get("spp"),
-        seed=request.get("seed"),
-        max_depth=request.get("max_depth"),
-    )
-    return dataclasses.replace(state, camera=camera, render=render)
-
-
-class JobRun:
-    """A job being rendered by the render thread, one coordinator frame per :meth:`step`."""
-
-    def __init__(self, record: dict, state: SceneState, done_frames: set[int], settings: Settings):
-        self.id = record["id"]
-        self.record = record
-        self.request = record["request"]
-        self.settings = settings
-        self.base = job_state(state, self.request)
-        self.graph = SceneGraph(self.base, key=self.id)
-        self.frames = job_frames(self.base, self.request)
-        self.todo = [f for f in self.frames if f.number not in done_frames]
-        self.done = len(self.frames) - len(self.todo)
-        self.keyframes = self.request.get("kind") == "animation" and not self.request.get(
-            "camera_path"
-        )
-        self.mode = (
-            "target_error"
-            if self.request.get("target_error") is not None
-            else "time_budget"
-            if self.request.get("time_budget") is not None
-            else "spp"
-        )
-        self.width, self.height = self.base.camera.width, self.base.camera.height
-        self.spp = self.base.render.spp
-        self.max_spp = min(self.request.get("max_spp") or settings.max_spp, settings.max_spp)
-        self.started = time.monotonic()
-        self.done_at_start = self.done
-        self.inflight = None
-        self.last_frame = None
-        self.progressive: ProgressiveFrame | None = None
-        self.current: FrameSpec | None = None
-        self.current_started = 0.0
-        self.samples_done = 0
-        self.frame_budget = (
-            float(self.request["time_budget"]) / max(1, len(self.frames))
-            if self.mode == "time_budget"
-            else None
-        )
-
-    @property
-    def finished(self) -> bool:
-        return not self.todo and self.current is None
-
-    def _camera_settings(self, spec: FrameSpec):
-        state = self.graph.state
-        camera = spec.camera or state.camera
-        return camera, state.render
-
-    def step(self, coordinator) -> tuple[FrameSpec, np.ndarray, dict] | None:
-        """Render one coordinator frame; returns (frame, image, info) when a frame is done."""
-        if self.current is None:
-            self.current = self.todo[0]
-            self.current_started = time.monotonic()
-            if self.keyframes:
-                self.graph.frame_commit(self.current.number)
-        spec = self.current
-        camera, render = self._camera_settings(spec)
-        if self.mode == "spp":
-            self.inflight = coordinator.submit_frame(
-                FrameRequest(spec.number, camera, render, 0), self.graph
-            )
-            try:
-                frame = coordinator.wait_frame(self.inflight)
-            finally:
-                self.inflight = None
-            self.last_frame = frame
-            self.samples_done += camera.width * camera.height * render.spp
-            return self._complete(spec, frame.rgb, render.spp, None, frame.wall_seconds)
-        return self._wave(coordinator, spec, camera, render)
-
-    def _wave(self, coordinator, spec: FrameSpec, camera, render):
-        """One part of a wave of a progressive frame (``cluster.progressive``: four independent
-        parts per wave, whose spread estimates the error of their mean)."""
-        p = self.progressive
-        if p is None:
-            target = self.request.get("target_error")
-            goal = Goal(
-                target_error=None if target is None else float(target),
-                time_budget=self.frame_budget,
-                max_spp=self.max_spp,
-            )
-            p = self.progressive = ProgressiveFrame(camera.width, camera.height, goal)
-        part = p.next_part()
-        t0 = time.monotonic()
-        if isinstance(part, SpotCheck):
-            pixels, parts, work = coordinator.render_spot_checks(
-                part, FrameRequest(spec.number, camera, render), self.graph
-            )
-            p.add_spot_checks(pixels, parts, time.monotonic() - t0, work)
-        else:
-            self.inflight = coordinator.submit_frame(
-                FrameRequest(
-                    spec.number, camera, fmt.override(render, spp=part.spp), part.sample_start
-                ),
-                self.graph,
-            )
-            try:
-                frame = coordinator.wait_frame(self.inflight)
-            finally:
-                self.inflight = None
-            self.last_frame = frame
-            p.add_part(frame.rgb, time.monotonic() - t0, float(frame.cost.sum()))
-            self.samples_done += camera.width * camera.height * part.spp
-        if not p.done:
-            return None
-        return self._complete(spec, p.image, p.spp, p.error, p.elapsed)
-
-    def _complete(self, spec, image, spp, error, seconds):
-        self.todo.pop(0)
-        self.current = None
-        self.progressive = None
-        self.done += 1
-        return spec, image, {"spp": spp, "error_estimate": error, "seconds": seconds}
-
-    def progress(self) -> dict:
-        """Frames, lines, samples and an ETA, from what the thread has recorded (any thread)."""
-        total = len(self.frames)
-        lines_done = 0
-        inflight = self.inflight
-        if inflight is not None:
-            try:
-                lines_done = int(inflight.assembler.done.sum())
-            except AttributeError:  # pragma: no cover - a coordinator without an assembler
-                lines_done = 0
-        p = self.progressive
-        spp_current = p.spp if p is not None else 0
-        elapsed = time.monotonic() - self.started
-        eta = None
-        if self.mode == "spp":
-            per_frame = self.width * self.height * self.spp
-            done_work = (
-                self.done - self.done_at_start
-            ) * per_frame + lines_done * self.width * self.spp
-            remaining = (total - self.done) * per_frame - lines_done * self.width * self.spp
-            if done_work > 0:
-                eta = elapsed / done_work * max(0, remaining)
-        elif self.mode == "time_budget":
-            frame_elapsed = time.monotonic() - self.current_started if self.current else 0.0
-            eta = max(0.0, (total - self.done) * self.frame_budget - frame_elapsed)
-        elif p is not None and p.waves and p.waves[-1].error and self.done == self.done_at_start:
-            target = float(self.request["target_error"])
-            wave = p.waves[-1]  # the estimate and the samples it was made at
-            needed = min(self.max_spp, wave.spp * (wave.error / target) ** 2)
-            eta = p.elapsed / p.spp * max(0.0, needed - p.spp) * (total - self.done)
-        elif self.done > self.done_at_start:
-            eta = elapsed / (self.done - self.done_at_start) * (total - self.done)
-        return {
-            "frames_done": self.done,
-            "frames_total": total,
-            "current_frame": None if self.current is None else self.current.number,
-            "lines_done": lines_done if self.mode == "spp" else (self.height if p else 0),
-            "lines_total": self.height,
-            "samples_done": self.samples_done,
-            "spp_current_frame": spp_current if self.mode != "spp" else self.spp,
-            "error_estimate": None if p is None else p.error,
-            "error_spp": p.waves[-1].spp if p is not None and p.waves else None,
-            "eta_seconds": None if eta is None else round(eta, 3),
-            "elapsed_seconds": round(elapsed, 3),
-        }
-
-
-# --- Sessions ----------------------------------------------------------------------------------
-
-
-class LiveSession:
-    """An interactive session as the service holds it: the cluster's
-    :class:`InteractiveSession`, the latest JPEG frame, its watchers and timings."""
-
-    def __init__(self, session_id: str, entry: SceneEntry, width: int, height: int, loop):
-        self.id = session_id
-        self.scene_id = entry.id
-        self.entry = entry
-        self.width, self.height = width, height
-        self.loop = loop
-        self.session = None
-        self.camera: fmt.Camera | None = None
-        self.created = time.time()
-        self.last_activity = time.monotonic()
-        self.clients = 0
-        self.seq = 0
-        self.jpeg: bytes | None = None
-        self.meta: dict = {}
-        self.closed = False
-        self.closed_reason: str | None = None
-        self.error: str | None = None
-        self.event = asyncio.Event()
-        self.camera_update_at: float | None = None
-        self.latencies: collections.deque = collections.deque(maxlen=64)
-        self.overheads: collections.deque = collections.deque(maxlen=64)
-        self.encode_ms: collections.deque = collections.deque(maxlen=64)
-        self.render_ms: collections.deque = collections.deque(maxlen=64)
-        self.last_render_end: float | None = None
-        self.frame_times: collections.deque = collections.deque(maxlen=32)
-        self.frames = 0
-
-    def touch(self) -> None:
-        self.last_activity = time.monotonic()
-
-    def watched(self, now: float) -> bool:
-        return self.clients > 0 or now - self.last_activity < SESSION_RENDER_GRACE
-
-    def publish(self, jpeg: bytes, meta: dict) -> None:
-        """Runs on the event loop: store the frame and wake the streams."""
-        self.jpeg, self.meta = jpeg, meta
-        self.seq += 1
-        event, self.event = self.event, asyncio.Event()
-        event.set()
-
-    def wake(self) -> None:
-        """Runs on the event loop: wake the streams (the session closed)."""
-        event, self.event = self.event, asyncio.Event()
-        event.set()
-
-    def stats(self) -> dict:
-        base: dict = {}
-        if self.session is not None:
-            try:
-                base = dict(self.session.stats())
-            except Exception:
-                base = {}
-
-        def mean(values):
-            return round(float(np.mean(values)), 3) if values else None
-
-        times = list(self.frame_times)
-        fps = (
-            (len(times) - 1) / (times[-1] - times[0])
-            if len(times) > 1 and times[-1] > times[0]
-            else None
-        )
-        return {
-            **{k: _plain(v) for k, v in base.items()},
-            "fps_stream": None if fps is None else round(fps, 2),
-            "frames_streamed": self.seq,
-            "clients": self.clients,
-            "last_frame": self.meta,
-            "camera_latency_ms": mean(self.latencies),
-            "camera_latency_last_ms": self.latencies[-1] if self.latencies else None,
-            "api_overhead_ms": mean(self.overheads),
-            "render_ms": mean(self.render_ms),
-            "api_overhead_percent": None
-            if not self.overheads or not self.render_ms
-            else round(100 * float(np.mean(self.overheads)) / float(np.mean(self.render_ms)), 3),
-            "encode_ms": mean(self.encode_ms),
-        }
-
-
-def _plain(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-def encode_jpeg(image: np.ndarray, quality: int) -> bytes:
-    """Float32 linear HxWx3 -> sRGB JPEG bytes."""
-    from PIL import Image
-
-    buffer = io.BytesIO()
-    Image.fromarray(linear_to_srgb8(image), mode="RGB").save(
-        buffer, format="JPEG", quality=quality, subsampling=0
-    )  # 4:4:4: noisy, converging renders keep their colours
-    return buffer.getvalue()
 
 
 def session_factory_for(settings: Settings) -> Callable[[], type]:
@@ -649,7 +333,7 @@ class RenderService:
             tracers = self.coordinator.tracers()
         except Exception:
             return
-        self._renice(tracers)
+        renice_local_tracers(tracers, self.settings.tracer_nice, self._node, self._reniced)
         self.cluster_info = {
             **self.cluster_info,
             "tracers": tracers,
@@ -657,72 +341,17 @@ class RenderService:
             "stats": dict(getattr(self.coordinator, "stats", {})),
         }
 
-    def _renice(self, tracers: list[dict]) -> None:
-        """Lower the CPU priority of tracer processes running on this machine (every thread
-        they have; threads they start later inherit it), so that the event loop, which needs
-        little CPU but needs it at once, is not queued behind render threads on a machine
-        whose every core renders. Tracers on other machines are left alone."""
-        nice = self.settings.tracer_nice
-        if nice <= 0 or not hasattr(os, "setpriority"):
-            return
-        for tracer in tracers:
-            pid = tracer.get("pid")
-            if pid is None or pid in self._reniced or tracer.get("node") != self._node:
-                continue
-            self._reniced.add(pid)
-            try:
-                for tid in os.listdir(f"/proc/{pid}/task"):
-                    os.setpriority(os.PRIO_PROCESS, int(tid), nice)
-            except (OSError, ValueError) as exc:
-                log.info(
-                    "cannot lower the priority of tracer %s (pid %s): %s", tracer["id"], pid, exc
-                )
-
     def _record_frame(self, frame, kind: str) -> None:
         """Per-tracer lines, speed and idle time of the latest frame, for /v1/cluster."""
         if frame is None:
             return
-        lines: dict[str, float] = {}  # in lines: a frame of many tracers hands out spans of them
-        for r in frame.ranges:
-            lines[r.tracer] = lines.get(r.tracer, 0.0) + frame.units.lines(r.u0, r.u1)
-        busy = frame.tracer_seconds
-        slowest = max(busy.values(), default=0.0)
-        rays = int(frame.rays.sum()) if frame.rays is not None else 0
-        per_tracer = {
-            tid: {
-                "lines": round(lines.get(tid, 0.0), 6),  # exact: spans are powers of two
-                "seconds": round(busy.get(tid, 0.0), 6),
-                "lines_per_second": round(lines.get(tid, 0) / busy[tid], 2)
-                if busy.get(tid)
-                else None,
-                "idle_percent": round(100.0 * (slowest - busy.get(tid, 0.0)) / slowest, 2)
-                if slowest > 0
-                else 0.0,
-            }
-            for tid in set(lines) | set(busy)
-        }
-        self.cluster_info["last_frame"] = {
-            "kind": kind,
-            "width": frame.camera.width,
-            "height": frame.camera.height,
-            "spp": frame.settings.spp,
-            "wall_seconds": round(frame.wall_seconds, 6),
-            "idle_percent": round(frame.idle_percent, 3),
-            "overhead_seconds": round(frame.overhead_seconds, 6),
-            "calls": frame.calls,
-            "pooled": frame.pooled,
-            "rays": rays,
-            "mrays_per_second": round(rays / frame.wall_seconds / 1e6, 3)
-            if frame.wall_seconds > 0
-            else None,
-            "tracers": per_tracer,
-        }
+        report = self.cluster_info["last_frame"] = frame_report(frame, kind)
         self.frames_rendered += 1
         if self.metrics is not None:
             self.metrics.frames.labels(kind).inc()
             self.metrics.frame_seconds.labels(kind).observe(frame.wall_seconds)
             self.metrics.idle.set(frame.idle_percent)
-            self.metrics.rays.labels(kind).inc(rays)
+            self.metrics.rays.labels(kind).inc(report["rays"])
 
     # Jobs --------------------------------------------------------------------------------------
 
@@ -841,7 +470,7 @@ class RenderService:
         """The scene as the job will render it, beside its results (before it is queued)."""
         directory = job_dir(self.settings, job_id)
         directory.mkdir(parents=True, exist_ok=True)
-        _write_atomic(directory / "scene.tls", encode_state(state))
+        write_atomic(directory / "scene.tls", encode_state(state))
 
     # Queries ---------------------------------------------------------------------------------
 
@@ -974,10 +603,3 @@ class RenderService:
         if self.metrics is not None and getattr(live.session, "last_frame", None) is None:
             self.metrics.frames.labels("session").inc()
             self.metrics.frame_seconds.labels("session").observe(t1 - t0)
-
-
-def set_camera_now(live: LiveSession, camera: fmt.Camera) -> None:
-    """Thread-safe camera update (InteractiveSession.set_camera is thread-safe)."""
-    live.camera_update_at = time.perf_counter()
-    live.session.set_camera(camera)
-    live.touch()

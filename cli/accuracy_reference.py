@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from tracer.compiled.scene import CompiledScene
+from tracer.io.files import atomic_path
 from tracer.kernel.numba_cache import source_digest
 from tracer.render import render_image
 from tracer.scene import format as fmt
@@ -199,7 +200,6 @@ def own_reference(
     mean = stack.mean(axis=0)
     var = stack.var(axis=0, ddof=1) / passes
     cache_dir.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, mean=mean, var_of_mean=var)
-    tmp.replace(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, mean=mean, var_of_mean=var)
     return Reference(mean, var, "tilerender", settings, per_pass * passes, seconds, detail)

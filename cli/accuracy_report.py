@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cli.accuracy import DEFAULT_CONFIG, TARGETS
+from cli.accuracy import DEFAULT_CONFIG
+from cli.accuracy_metrics import TARGETS
 from tracer.accuracy.error_estimate import PARTS, SPOT_CHECK_FACTOR, SPOT_CHECKS, to_display
 
 REPORT_START = "<!-- accuracy-report:start -->"

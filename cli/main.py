@@ -1,15 +1,23 @@
 """``tilerender``: render scenes from the command line.
 
-Every failure a user can cause (a bad scene, a bad option, an unwritable output, a Ray address
-that cannot be reached) ends with one line on stderr and exit code 2; nothing is written. A
-render the cluster cannot complete (every tracer lost) ends with one line and exit code 1.
-Ctrl-C exits with 130, writing nothing (an animation keeps the frames already written, and the
-message says how many). ``serve`` runs until Ctrl-C (or SIGTERM), shuts down cleanly and exits 0.
+The command line is parsed here; each command is a module of ``cli.commands`` (``COMMANDS``),
+imported only once the line parses. How a command ends is decided here too (``failure``):
+every failure a user can cause (a bad scene, a bad option, an unwritable output, a Ray address
+that cannot be reached: a ``TilerenderError``) ends with one line on stderr and exit code 2;
+nothing is written. A render the cluster cannot complete (every tracer lost: a ``ClusterError``,
+or any ``TilerenderError`` that refines ``RuntimeError``) ends with one line and exit code 1.
+Any other exception is a bug: one line saying so and exit code 1. Ctrl-C exits with 130,
+writing nothing (an animation keeps the frames already written, and the message says how
+many). ``serve`` runs until Ctrl-C (or SIGTERM), shuts down cleanly and exits 0.
 """
 
 import argparse
+import importlib
 import sys
 from collections.abc import Sequence
+
+from cli.errors import UsageError
+from tracer.errors import TilerenderError
 
 EXIT_FAILED = 1
 EXIT_USAGE = 2
@@ -46,12 +54,11 @@ examples:
   tilerender schema > scene-schema.json"""
 
 
-class UsageError(Exception):
-    """A problem with the command line or its inputs, reported in one line."""
-
-
-class CommandFailed(Exception):
-    """A valid command that could not complete (e.g. the cluster lost every tracer)."""
+COMMANDS = {
+    name: f"cli.commands.{name}"
+    for name in ("render", "samples", "serve", "info", "plan", "schema", "bench")
+}
+"""Each command's module; its ``run(args)`` returns the exit code."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -371,20 +378,25 @@ def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) ->
         )
 
 
+def failure(exc: Exception) -> tuple[int, str]:
+    """The exit code and the one line of stderr for an exception that ended a command."""
+    message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if isinstance(exc, TilerenderError):
+        # The domain errors refine RuntimeError for a cluster that cannot finish (ClusterError,
+        # PoolLost, CommandFailed), ValueError or ConnectionError for the user's input.
+        return (EXIT_FAILED if isinstance(exc, RuntimeError) else EXIT_USAGE), f"error: {message}"
+    return EXIT_FAILED, (
+        f"internal error: {type(exc).__name__}: {message} (a bug; please report it)"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tilerender`` console script."""
     try:
         args = build_parser().parse_args(argv)
         args.argv = list(sys.argv[1:] if argv is None else argv)
-        from cli import commands  # heavy imports (numba, trimesh) only once the line parses
-
-        return commands.run(args)
-    except UsageError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except CommandFailed as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+        # heavy imports (numba, trimesh) only once the line parses
+        return importlib.import_module(COMMANDS[args.command]).run(args)
     except KeyboardInterrupt as exc:
         message = exc.args[0] if exc.args else "interrupted; nothing written"
         print(message, file=sys.stderr)
@@ -392,6 +404,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. `tilerender info ... | head`
         sys.stderr.close()
         return 0
+    except Exception as exc:
+        code, message = failure(exc)
+        print(message, file=sys.stderr)
+        return code
 
 
 if __name__ == "__main__":

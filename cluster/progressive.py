@@ -17,14 +17,18 @@ independently, to ``SPOT_CHECK_FACTOR`` times the frame's samples, topping up th
 earlier waves (``tracer.accuracy.spot_check``).
 
 :class:`ProgressiveFrame` is the state and the rules, with no Ray in it (a caller may drive it
-one part at a time, as the service does between other work); :func:`render_progressive`
-drives it through a :class:`cluster.coordinator.Coordinator`.
+one part at a time, as the service does between other work); :func:`progressive_step` renders
+its next part through a :class:`cluster.coordinator.Coordinator`, and :func:`render_progressive`
+repeats that to the end (as the command line does).
 """
+
+from __future__ import annotations
 
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +36,10 @@ from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
 from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
+
+if TYPE_CHECKING:
+    from cluster.coordinator import Frame
+    from cluster.scene_graph import SceneGraph
 
 MAX_PART_SPP = 64
 """Most samples per pixel one part of a wave adds."""
@@ -146,6 +154,20 @@ class ProgressiveFrame:
         """The mean of every sample taken, float32 (H, W, 3)."""
         return (self.sums.sum(axis=0) / max(1, self.spp)).astype(np.float32)
 
+    def summary(self) -> dict:
+        """The goal, the estimate and why the frame stopped (for an image's metadata)."""
+        goal = self.goal
+        return {
+            "target_error": goal.target_error,
+            "time_budget": goal.time_budget,
+            "max_spp": goal.max_spp,
+            "error_estimate": self.error,
+            "spp": self.spp,
+            "waves": len(self.waves),
+            "spot_checks": self.waves[-1].checked if self.waves else 0,
+            "stopped": self.stopped,
+        }
+
     def next_part(self) -> Part | SpotCheck | None:
         """The part or spot check to render next, or None when the frame is done."""
         if self.stopped is not None:
@@ -241,40 +263,50 @@ class ProgressiveFrame:
         return max(1, spp)
 
 
+def progressive_step(
+    coordinator,
+    progress: ProgressiveFrame,
+    request: FrameRequest,
+    graph: SceneGraph | None = None,
+    render: Callable[[FrameRequest], Frame] | None = None,
+) -> Frame | None:
+    """Render what ``progress`` names next for ``request`` (a resolved camera and settings;
+    the part sets spp and sample_start) through ``coordinator`` (a ``Coordinator``) and add
+    it. Returns the coordinator's ``Frame`` of a part, None after spot checks. ``render``
+    renders a part's request (default ``coordinator.render_frame`` on ``graph``)."""
+    step = progress.next_part()
+    start = time.monotonic()
+    if isinstance(step, SpotCheck):
+        pixels, parts, work = coordinator.render_spot_checks(step, request, graph)
+        progress.add_spot_checks(pixels, parts, time.monotonic() - start, work)
+        return None
+    part = replace(
+        request,
+        settings=fmt.override(request.settings, spp=step.spp),
+        sample_start=step.sample_start,
+    )
+    done = render(part) if render is not None else coordinator.render_frame(part, graph)
+    progress.add_part(done.rgb, time.monotonic() - start, float(done.cost.sum()))
+    return done
+
+
 def render_progressive(
     coordinator,
     goal: Goal,
     frame: int = 0,
-    camera: fmt.Camera | None = None,
-    settings: fmt.RenderSettings | None = None,
-    on_part: Callable[[ProgressiveFrame, object], None] | None = None,
+    on_part: Callable[[ProgressiveFrame, Frame | None], None] | None = None,
 ) -> ProgressiveFrame:
-    """Render ``frame`` through ``coordinator`` (a ``Coordinator``) in waves until ``goal``.
-
-    ``camera`` and ``settings`` default to the scene's; ``settings.spp`` is ignored (the waves
-    choose it). ``on_part(progress, frame)`` sees each part and each wave's spot checks as they
-    complete (``frame``: the coordinator's ``Frame`` of the latest part, its timings and
-    effect plan).
-    """
+    """Render ``frame`` of the coordinator's scene, with its camera and settings (whose spp
+    the waves choose), in waves until ``goal``. ``on_part(progress, frame)`` sees each part
+    and each wave's spot checks as they complete (``frame``: the coordinator's ``Frame`` of
+    the latest part, its timings and effect plan)."""
     state = coordinator.graph.state
-    camera = camera or state.camera
-    settings = settings or state.render
-    progress = ProgressiveFrame(camera.width, camera.height, goal)
+    request = FrameRequest(frame, state.camera, state.render)
+    progress = ProgressiveFrame(state.camera.width, state.camera.height, goal)
     done = None
-    while (step := progress.next_part()) is not None:
-        start = time.monotonic()
-        if isinstance(step, SpotCheck):
-            pixels, parts, work = coordinator.render_spot_checks(
-                step, FrameRequest(frame, camera, settings)
-            )
-            progress.add_spot_checks(pixels, parts, time.monotonic() - start, work)
-            if on_part is not None:
-                on_part(progress, done)
-            continue
-        done = coordinator.render_frame(
-            FrameRequest(frame, camera, fmt.override(settings, spp=step.spp), step.sample_start)
-        )
-        progress.add_part(done.rgb, time.monotonic() - start, float(done.cost.sum()))
+    while not progress.done:
+        part = progressive_step(coordinator, progress, request)
+        done = part if part is not None else done
         if on_part is not None:
             on_part(progress, done)
     return progress

@@ -3,7 +3,7 @@
 import json
 from pathlib import Path
 
-from cli.commands import scene_schema_json
+from cli.commands.schema import scene_schema_json
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -12,12 +12,12 @@ from fastapi.responses import FileResponse, StreamingResponse
 from api.deps import Ctx
 from api.errors import ApiError
 from api.events import TERMINAL_EVENTS, sse
+from api.job_run import job_dir, job_frames, job_state
 from api.models import FramePublic, JobCreate, JobPublic, JobsPublic, Progress, errors
 from api.scenes import new_id
-from api.service import job_dir, job_frames, job_state
 from api.store import TERMINAL
 from cluster.progressive import PARTS
-from tracer.errors import format_validation_error
+from tracer.errors import SceneError, format_validation_error
 from tracer.io.images import read_image, write_image
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
@@ -90,8 +90,8 @@ def _check_limits(ctx: Ctx, body: JobCreate, state) -> None:
         raise ApiError(422, f"time_budget: at most {s.max_time_budget:g} s", "limit")
     try:
         posed = job_state(state, request)
-    except pydantic.ValidationError as exc:
-        raise ApiError(422, format_validation_error(exc)) from None
+    except SceneError as exc:
+        raise ApiError(422, str(exc)) from None
     if posed.camera.width > s.max_width or posed.camera.height > s.max_height:
         raise ApiError(
             422,

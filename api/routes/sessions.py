@@ -13,9 +13,9 @@ from fastapi.responses import StreamingResponse
 
 from api.deps import Ctx
 from api.errors import ApiError
+from api.live_session import LiveSession, set_camera_now
 from api.models import CameraPose, SessionCreate, SessionPublic, SessionsPublic, errors
 from api.scenes import new_id
-from api.service import LiveSession, set_camera_now
 from tracer.errors import format_validation_error
 from tracer.scene import format as fmt
 

@@ -15,13 +15,12 @@ from cli import main as cli_main
 from cli.accuracy import (
     DEFAULT_CONFIG,
     StudyOptions,
-    bias_variance,
     calibration,
     configurations,
     study_scene,
     study_size,
-    time_to,
 )
+from cli.accuracy_metrics import bias_variance, time_to
 from cli.accuracy_reference import block_mean, independent_reference, own_reference
 from cli.accuracy_report import REPORT_END, REPORT_START, load_previous, splice, write_report
 from tests.helpers import CORNELL, SCENES

@@ -116,7 +116,7 @@ def test_render_chooses_where_to_run(capsys, tmp_path, tiny_scene_file, options,
 
 def test_large_stills_go_through_the_coordinator(tiny_scene_file):
     """The default moves to Ray past IN_PROCESS_SAMPLES pixel samples, whatever their shape."""
-    from cli.commands import IN_PROCESS_SAMPLES, runs_in_process
+    from cli.commands.render import IN_PROCESS_SAMPLES, runs_in_process
 
     args = cli_main.build_parser().parse_args(["render", "x.json", "-o", "x.png"])
     state = load_scene(tiny_scene_file)
@@ -264,14 +264,14 @@ def test_interrupted_render_writes_nothing(
     capsys, tmp_path, tiny_scene_file, monkeypatch, executor
 ):
     """Ctrl-C during a render exits with 130 and one line, and writes no file."""
-    from cli import commands
+    from cli import in_process
     from cluster.coordinator import Coordinator
 
     def interrupt(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(Coordinator, "render_frame", interrupt)
-    monkeypatch.setattr(commands, "render_image", interrupt)
+    monkeypatch.setattr(in_process, "render_image", interrupt)
     out = tmp_path / "out.png"
     code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--spp", 1, executor, "-q")
     assert code == 130
@@ -596,7 +596,7 @@ def test_samples(capsys, tmp_path):
 
 def test_readme_sample_scenes_exist():
     """The scenes the README and `samples` rely on are in the repository."""
-    from cli.commands import REPO_SCENES, sample_scene_files
+    from cli.commands.samples import REPO_SCENES, sample_scene_files
 
     assert REPO_SCENES == ROOT / "scenes"
     names = {p.parent.name for p in sample_scene_files(REPO_SCENES)}
@@ -657,10 +657,80 @@ def test_serve_prints_the_viewer_url_and_stops_on_ctrl_c(tmp_path):
 def test_serve_balancer_flag_overrides_the_environment_only_when_given(monkeypatch):
     """TILERENDER_BALANCER holds unless --balancer is given (the flag has no default of its
     own that would hide the variable)."""
-    from cli.commands import serve_settings
+    from cli.commands.serve import serve_settings
 
     monkeypatch.setenv("TILERENDER_BALANCER", "perfect")
     parser = cli_main.build_parser()
     assert serve_settings(parser.parse_args(["serve"])).balancer == "perfect"
     given = parser.parse_args(["serve", "--balancer", "none"])
     assert serve_settings(given).balancer == "none"
+
+
+# --- exit codes -----------------------------------------------------------------------------
+
+
+def _cluster_error():
+    from cluster.coordinator import ClusterError
+
+    return ClusterError("no tracer is left to render with")
+
+
+def _scene_error():
+    from tracer.errors import SceneError
+
+    return SceneError("camera.width: too wide")
+
+
+def _usage_error():
+    from cli.errors import UsageError
+
+    return UsageError("--frames: the scene has no animation")
+
+
+def _command_failed():
+    from cli.errors import CommandFailed
+
+    return CommandFailed("Ray did not start")
+
+
+@pytest.mark.parametrize(
+    "make,code,words",
+    [
+        (_usage_error, 2, ["error: --frames"]),
+        (_scene_error, 2, ["error: camera.width"]),
+        (_cluster_error, 1, ["error: no tracer is left"]),
+        (_command_failed, 1, ["error: Ray did not start"]),
+        (lambda: KeyError("boom"), 1, ["internal error", "KeyError", "a bug"]),
+        (lambda: ValueError("boom"), 1, ["internal error", "ValueError", "a bug"]),
+        (lambda: OSError("boom"), 1, ["internal error", "OSError", "a bug"]),
+    ],
+)
+def test_exceptions_map_to_exit_codes(capsys, monkeypatch, tiny_scene_file, make, code, words):
+    """tilerender's own errors are the user's (2) or a render the cluster could not finish
+    (1); any other exception is a bug: exit 1 and one line that says so, not a usage error."""
+    from cli.commands import info
+
+    def fail(args):
+        raise make()
+
+    monkeypatch.setattr(info, "run", fail)
+    got, out, err = run(capsys, "info", tiny_scene_file)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert got == code, err
+    assert len(lines) == 1 and "Traceback" not in err and out == ""
+    assert all(word in lines[0] for word in words), lines[0]
+
+
+def test_an_unwritable_output_is_a_user_error(capsys, monkeypatch, tmp_path, tiny_scene_file):
+    """An OSError writing the image (here its directory vanished) is the user's to fix: exit
+    2, one line naming the file."""
+    from cli import output
+
+    def vanished(path, rgb, metadata=None):
+        raise FileNotFoundError(2, "No such file or directory", str(path))
+
+    monkeypatch.setattr(output, "write_image", vanished)
+    out = tmp_path / "out.npy"
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, "--spp", 1, "-q")
+    assert_usage_error(code, err, "cannot write", "out.npy", "No such file")
+    assert not out.exists()

@@ -1,17 +1,16 @@
 """Write and read rendered images: PNG (sRGB, 8 bit), EXR (float32 linear), NPY (float32 linear).
 
-Writes are atomic: the image goes to a temporary file beside the target, which is renamed into
-place only when complete, so a failed or interrupted render never leaves a partial file.
+Writes are atomic (``tracer.io.files``): a failed or interrupted render never leaves a partial
+file.
 """
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from tracer.io.files import atomic_path
 from tracer.kernel.jit import jit
 
 FORMATS = (".png", ".exr", ".npy")
@@ -59,10 +58,7 @@ def write_image(path: str | Path, rgb: np.ndarray, metadata: dict | None = None)
         raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
     text = json.dumps(metadata or {}, sort_keys=True)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
+    with atomic_path(path) as tmp:
         suffix = path.suffix.lower()
         if suffix == ".npy":
             with open(tmp, "wb") as f:
@@ -82,20 +78,7 @@ def write_image(path: str | Path, rgb: np.ndarray, metadata: dict | None = None)
                 "tilerender": text,
             }
             OpenEXR.File(header, {"RGB": rgb}).write(str(tmp))
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the usual permissions
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
-
-
-def _read_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _read_umask()  # once, at import: os.umask is process-wide and not thread-safe to probe
 
 
 def read_image(path: str | Path) -> np.ndarray:

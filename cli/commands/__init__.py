@@ -1,0 +1,1 @@
+"""The ``tilerender`` sub-commands, one module each with ``run(args) -> int`` (see ``cli.main``)."""

@@ -1,0 +1,58 @@
+"""Rendering in this process, without Ray: a still with a progress bar of lines."""
+
+import time
+from pathlib import Path
+
+from cli.output import note_compiling, progress_bar, stderr, write_output
+from tracer.compiled.scene import CompiledScene
+from tracer.integrators.effects import effect_plan
+from tracer.io.metadata import image_metadata
+from tracer.render import render_image, render_lines
+from tracer.scene import format as fmt
+
+
+def warm_up(scene: CompiledScene, settings: fmt.RenderSettings, quiet: bool) -> None:
+    """Compile the render kernel (or load it from the cache) with a one-pixel render."""
+    cached = note_compiling(quiet)
+    start = time.perf_counter()
+    tiny = fmt.override(scene.camera, width=1, height=1)
+    render_lines(scene, 0, 1, tiny, fmt.override(settings, spp=1), threads=1)
+    if not cached and not quiet:
+        stderr.print(f"compiled in {time.perf_counter() - start:.1f} s")
+
+
+def render_to_file(
+    scene: CompiledScene,
+    camera: fmt.Camera,
+    settings: fmt.RenderSettings,
+    outputs: list[Path],
+    threads: int | None,
+    quiet: bool,
+    label: str,
+) -> float:
+    """Render with a progress bar and write every output; returns seconds spent rendering."""
+    warm_up(scene, settings, quiet)
+    samples_total = camera.width * camera.height * settings.spp
+    start = time.perf_counter()
+    with progress_bar(quiet, "{task.completed}/{task.total} lines") as progress:
+        task = progress.add_task(label, total=camera.height)
+        rays = []
+
+        def on_lines(part) -> None:
+            progress.advance(task, part.y1 - part.y0)
+            rays.append(int(part.rays.sum()))
+
+        image, _ = render_image(scene, camera, settings, threads=threads, on_lines=on_lines)
+    seconds = time.perf_counter() - start
+    plan = effect_plan(scene, settings).to_json()
+    metadata = image_metadata(camera, settings, plan, seconds, sum(rays), "in-process")
+    for path in outputs:
+        write_output(path, image, metadata)
+    if not quiet:
+        rate = samples_total / seconds / 1e6
+        names = ", ".join(str(p) for p in outputs)
+        stderr.print(
+            f"wrote {names}: {camera.width}x{camera.height}, {settings.spp} spp, "
+            f"{seconds:.2f} s, {rate:.2f} M samples/s, {sum(rays) / seconds / 1e6:.2f} M rays/s"
+        )
+    return seconds
