@@ -90,10 +90,10 @@ from ray.exceptions import (
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from cluster.assembler import Assembler, runs
-from cluster.balance import DEFAULT_BALANCER, TracerReport, even_split, make_balancer
+from cluster.balancing import DEFAULT_BALANCER, TracerReport, even_split, make_balancer
 from cluster.connect import connect
 from cluster.scene_graph import SceneGraph
-from cluster.tail import TailPlan
+from cluster.balancing.tail_plan import TailPlan
 from tracer.accuracy.error_estimate import PARTS
 from tracer.accuracy.spot_check import SpotCheck
 from tracer.errors import TilerenderError

@@ -20,7 +20,7 @@ import ray
 import trimesh
 
 from cluster.assembler import Assembler
-from cluster.balance import BALANCERS, CostAwareTail, idle_percent
+from cluster.balancing import BALANCERS, CostAwareTail, idle_percent
 from cluster.connect import ClusterUnreachable, connect, disconnect, probe
 from cluster.coordinator import INLINE_COMMITS, ClusterError, Coordinator, gap_idle_percent
 from cluster.scene_graph import SceneGraph
