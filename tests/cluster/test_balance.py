@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from cluster.balancing import (
     BALANCERS,
+    Balancer,
     CostAware,
     Perfect,
     PerfectSmooth,
@@ -491,3 +492,15 @@ def test_cost_aware_blurs_over_image_lines_within_a_span():
 def test_reports_must_fit_the_spans():
     with pytest.raises(ValueError, match="spans"):
         CostAware().split(10, ["a"], spans=4)
+
+
+@pytest.mark.parametrize("name", sorted(BALANCERS))
+def test_every_balancer_declares_the_interface(name):
+    """Each balancer is a ``Balancer``: a plan (heads and a tail) only from the tail
+    balancers, the split alone from the others; only ``cost-aware-tail`` may use the actor
+    pool."""
+    balancer = make_balancer(name)
+    assert isinstance(balancer, Balancer) and balancer.name == name
+    plan = balancer.plan(40, ["a", "b"])
+    assert (plan is not None) == (name in ("cost-aware", "cost-aware-tail"))
+    assert balancer.remote_pool == (name == "cost-aware-tail")
