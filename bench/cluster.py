@@ -54,6 +54,7 @@ from cluster.coordinator import Coordinator
 from cluster.scene_graph import SceneGraph
 from tracer.request import FrameRequest
 from tracer.scene.loader import load_scene
+from worker.envelope import SceneEnvelope
 from worker.work_units import WorkUnits
 
 CORNELL = REPO_ROOT / "scenes" / "cornell-box" / "scene.json"
@@ -275,13 +276,12 @@ def call_costs(width: int, height: int, repeats: int) -> dict:
     camera = orbit_camera(0.0, width, height)
     trips, gaps, fixed = [], [], []
     with Coordinator(SceneGraph(state), tracers=1, cpus_per_tracer=1.0) as c:
-        version = c.render_frame(FrameRequest(camera=camera, settings=settings)).version
+        request = FrameRequest(camera=camera, settings=settings)
+        envelope = SceneEnvelope(c.graph.key, c.render_frame(request).version)
         handle = c.tracer_handle(c.ready[0])
 
         def call(y0: int, y1: int):
-            return handle.render.remote(
-                0, version, [], camera, settings, y0, y1, 0, None, c.graph.key
-            )
+            return handle.render.remote(envelope, request.for_units(y0, y1))
 
         for _ in range(repeats):
             for _ in range(10):
