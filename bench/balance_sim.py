@@ -60,7 +60,7 @@ from common import (
     write_results,
 )
 
-from cluster.balance import (
+from cluster.balancing import (
     BALANCERS,
     CostAware,
     CostAwareTail,
@@ -711,9 +711,9 @@ def check_targets(all_results: dict, model: str, name: str = "cost-aware") -> li
 def sweep_variants() -> dict:
     """Variants of the balancers' constants, one changed at a time from the defaults."""
     variants: dict = {}
-    variants["robin-hood unit=1% of H"] = RobinHood
+    variants["robin-hood step=1% of H"] = RobinHood
     for unit in (1, 2, 4, 8):
-        variants[f"robin-hood unit={unit}"] = lambda u=unit: RobinHood(unit=u)
+        variants[f"robin-hood step={unit}"] = lambda u=unit: RobinHood(step=u)
     for alpha in (0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0):
         variants[f"perfect-smooth alpha={alpha}"] = lambda a=alpha: PerfectSmooth(alpha=a)
     variants["cost-aware (defaults)"] = CostAware

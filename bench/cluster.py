@@ -48,12 +48,13 @@ from common import (
 )
 from record_cost_traces import ORBITS, load_orbit_scene, orbit_camera
 
-from cluster.balance import BALANCERS, CostAware, TracerReport, min_max_cuts
+from cluster.balancing import BALANCERS, Balancer, CostAware, TracerReport, min_max_cuts
 from cluster.connect import connect, disconnect
 from cluster.coordinator import Coordinator
 from cluster.scene_graph import SceneGraph
 from tracer.request import FrameRequest
 from tracer.scene.loader import load_scene
+from worker.envelope import SceneEnvelope
 from worker.work_units import WorkUnits
 
 CORNELL = REPO_ROOT / "scenes" / "cornell-box" / "scene.json"
@@ -100,11 +101,13 @@ def scaling(size: int, spp: int, repeats: int) -> dict:
     }
 
 
-class HindsightSplit:
-    """Not a balancer: cuts each frame with the min-max partition of that frame's *true* unit
-    costs (recorded in an earlier pass; pixels and costs are deterministic per frame) and each
-    tracer's speed averaged over every frame seen so far. The idle it leaves is what timing
-    noise alone costs on this machine: a floor for every balancer."""
+class HindsightSplit(Balancer):
+    """A yardstick, not a balancer to use: cuts each frame with the min-max partition of that
+    frame's *true* unit costs (recorded in an earlier pass; pixels and costs are deterministic
+    per frame) and each tracer's speed averaged over every frame seen so far. The idle it
+    leaves is what timing noise alone costs on this machine: a floor for every balancer."""
+
+    name = "hindsight"
 
     def __init__(self, costs: list[tuple[WorkUnits, np.ndarray]]) -> None:
         self.costs = costs
@@ -113,12 +116,12 @@ class HindsightSplit:
         self.work: dict[str, float] = {}
         self.seconds: dict[str, float] = {}
 
-    def split(self, height: int, tracer_ids: list[str], spans: int = 1) -> list[tuple[int, int]]:
-        units, cost = self.costs[min(self.calls, len(self.costs) - 1)]
+    def split(self, units: int, tracer_ids: list[str], spans: int = 1) -> list[tuple[int, int]]:
+        layout, cost = self.costs[min(self.calls, len(self.costs) - 1)]
         self.calls += 1
         cost = cost.astype(np.float64)
-        if cost.size != height:  # another layout (a tracer sat the frame out): lines spread
-            cost = np.repeat(units.per_line(cost) / spans, spans)
+        if cost.size != units:  # another layout (a tracer sat the frame out): lines spread
+            cost = np.repeat(layout.per_line(cost) / spans, spans)
         known = [self.work[t] / self.seconds[t] for t in tracer_ids if self.seconds.get(t)]
         mean = statistics.fmean(known) if known else 1.0
         speeds = [
@@ -127,10 +130,10 @@ class HindsightSplit:
         cost = np.maximum(cost, CostAware.FLOOR * max(cost.mean(), 1e-300))
         return list(itertools.pairwise(min_max_cuts(cost, speeds)))
 
-    def observe(self, height: int, reports: list[TracerReport], spans: int = 1) -> None:
+    def observe(self, units: int, reports: list[TracerReport], spans: int = 1) -> None:
         for r in reports:
-            if r.y1 > r.y0 and r.seconds > 0:  # a TracerReport: the balancer's lines
-                self.work[r.tracer] = self.work.get(r.tracer, 0.0) + float(r.line_cost.sum())
+            if r.u1 > r.u0 and r.seconds > 0:
+                self.work[r.tracer] = self.work.get(r.tracer, 0.0) + float(r.unit_cost.sum())
                 self.seconds[r.tracer] = self.seconds.get(r.tracer, 0.0) + r.seconds
 
 
@@ -273,13 +276,12 @@ def call_costs(width: int, height: int, repeats: int) -> dict:
     camera = orbit_camera(0.0, width, height)
     trips, gaps, fixed = [], [], []
     with Coordinator(SceneGraph(state), tracers=1, cpus_per_tracer=1.0) as c:
-        version = c.render_frame(FrameRequest(camera=camera, settings=settings)).version
+        request = FrameRequest(camera=camera, settings=settings)
+        envelope = SceneEnvelope(c.graph.key, c.render_frame(request).version)
         handle = c.tracer_handle(c.ready[0])
 
         def call(y0: int, y1: int):
-            return handle.render.remote(
-                0, version, [], camera, settings, y0, y1, 0, None, c.graph.key
-            )
+            return handle.render.remote(envelope, request.for_units(y0, y1))
 
         for _ in range(repeats):
             for _ in range(10):

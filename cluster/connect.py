@@ -23,17 +23,13 @@ from dataclasses import dataclass
 import psutil
 import ray
 
-from tracer.errors import TilerenderError
+from cluster.errors import ClusterUnreachable
 
 PROBE_TIMEOUT = 5.0
 """Seconds allowed for the TCP connect and handshake with a cluster's address."""
 
 _HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
 _SETTINGS = 0x4
-
-
-class ClusterUnreachable(TilerenderError, ConnectionError):
-    """The Ray cluster at an address cannot be reached; ``str()`` says which and why."""
 
 
 @dataclass(frozen=True)

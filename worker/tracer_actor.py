@@ -10,12 +10,15 @@ A tracer may hold several scenes at once (a service renders jobs and sessions of
 scenes in turns): each is a replica under the key of its scene graph, the
 ``MAX_SCENES`` most recently used are kept, and every call names its scene.
 
-A render call carries everything the tracer needs to reach the frame's version: the commit
-buffer since the version the coordinator believes the tracer holds (encoded commits, applied
-in order and idempotently), or a snapshot when the coordinator knows it has none. If the
-replica still cannot produce the version (a restarted process, a gap in the commits, or a
-version it no longer keeps) the call returns :class:`OutOfSync` instead of pixels, saying which
-version it holds, and the coordinator resends the range with the right commits or a snapshot.
+Every call on a scene (``render``, ``spot_check``, ``query``) carries a
+:class:`~worker.envelope.SceneEnvelope`, everything the tracer needs to reach the version the
+call is for: the commit buffer since the version the coordinator believes the tracer holds
+(encoded commits, applied in order and idempotently), or a snapshot when the coordinator knows
+it has none; ``reach`` applies it. If the replica still cannot produce the version (a
+restarted process, a gap in the commits, or a version it no longer keeps) the call returns
+:class:`OutOfSync` instead of its answer, saying which version it holds, and the coordinator
+resends it with the right commits or a snapshot. A frame's calls carry the frame's
+:class:`~tracer.request.FrameRequest` with the tracer's share of its work units.
 
 Rendering uses as many threads as the CPUs the actor reserved (at least one), so tracers never
 oversubscribe the cores Ray gave them.
@@ -36,14 +39,14 @@ from tracer.integrators.effects import effect_plan
 from tracer.kernel import numba_cache
 from tracer.kernel.threads import default_threads
 from tracer.render import render_lines, render_pixels
+from tracer.request import FrameRequest
 from tracer.scene import format as fmt
+from worker.envelope import DEFAULT_SCENE, SceneEnvelope
 from worker.line_pool import LinePool
 from worker.remote_pool import PoolLost, RemotePool
 from worker.replica import SceneReplica
 from worker.work_units import WorkUnits
 
-DEFAULT_SCENE = "default"
-"""The scene key of calls that name none (a tracer serving one scene)."""
 MAX_SCENES = 4
 """Scenes a tracer keeps compiled; the least recently used beyond this is dropped (a call
 for it later answers :class:`OutOfSync` and is resent with a snapshot)."""
@@ -172,10 +175,22 @@ class Tracer:
         replica = self.replicas.get(scene)
         return None if replica is None else replica.version
 
-    def _reach(
-        self, scene: str, version: int, commits: list[bytes], snapshot: bytes | None
-    ) -> str | None:
-        """Bring ``scene``'s replica to hold ``version``; None on success, else why not."""
+    def reach(self, envelope: SceneEnvelope, frame: int = -1) -> tuple[OutOfSync | None, float]:
+        """Bring the replica of ``envelope.scene`` to hold ``envelope.version``: (None, or the
+        :class:`OutOfSync` answer for ``frame`` saying why not; seconds spent applying)."""
+        envelope = envelope.fetched()
+        start = time.perf_counter()
+        problem = self._apply(envelope)
+        seconds = time.perf_counter() - start
+        if problem is None:
+            return None, seconds
+        scene, version = envelope.scene, envelope.version
+        have = self.version(scene)
+        return OutOfSync(self.id, frame, version, have, problem, self.incarnation, scene), seconds
+
+    def _apply(self, envelope: SceneEnvelope) -> str | None:
+        """Apply ``envelope``'s snapshot or commits; None on success, else why it failed."""
+        scene, version, snapshot = envelope.scene, envelope.version, envelope.snapshot
         replica = self.replica(scene)
         if snapshot is not None and (replica is None or version not in replica.versions):
             self.sync_snapshot(snapshot, scene)
@@ -185,54 +200,42 @@ class Tracer:
         if version in replica.versions:
             return None
         try:
-            replica.apply(commits)
+            replica.apply(list(envelope.commits))
         except SceneError as error:  # a gap (CommitGap) or a commit that does not apply here
             return str(error).splitlines()[0]
         if version not in replica.versions:
             return f"holds versions {replica.versions}, not {version}"
         return None
 
-    def _out_of_sync(self, scene: str, frame: int, version: int, problem: str) -> OutOfSync:
-        have = self.version(scene)
-        return OutOfSync(self.id, frame, version, have, problem, self.incarnation, scene)
-
     # Rendering -------------------------------------------------------------------------------
 
     def render(
         self,
-        frame: int,
-        version: int,
-        commits: list[bytes],
-        camera: fmt.Camera | None,
-        settings: fmt.RenderSettings | None,
-        u0: int,
-        u1: int,
-        sample_start: int = 0,
-        snapshot: bytes | None = None,
-        scene: str = DEFAULT_SCENE,
-        pool: tuple[str | RemotePool, int] | None = None,
+        envelope: SceneEnvelope,
+        request: FrameRequest,
         spans: int = 1,
+        pool: tuple[str | RemotePool, int] | None = None,
     ) -> "UnitsResult | OutOfSync":
-        """Render work units [u0, u1) of ``frame`` (``spans`` units per line: whole lines by
-        default) exactly at ``version`` of ``scene``.
+        """Render the work units ``request.units`` (``spans`` units per line: whole lines by
+        default) of ``request``'s frame exactly at the version ``envelope`` reaches.
 
-        First applies ``commits`` (encoded, in version order; ones already applied are
-        skipped), or starts from ``snapshot`` when given and needed. ``camera`` and ``settings``
-        default to the scene's at ``version``. ``pool``: the frame's shared pool (a
-        :mod:`worker.line_pool` file's path, or a :class:`worker.remote_pool.RemotePool`) and
-        this tracer's owner id in it; after its own units the tracer claims and renders the
-        pool's chunks until none is left (``UnitsResult.more``). [u0, u1) may then be empty.
+        The request's camera and settings left None are the scene's at that version. ``pool``:
+        the frame's shared pool (a :mod:`worker.line_pool` file's path, or a
+        :class:`worker.remote_pool.RemotePool`) and this tracer's owner id in it; after its own
+        units the tracer claims and renders the pool's chunks until none is left
+        (``UnitsResult.more``). The request's units may then be empty.
         """
-        start = time.perf_counter()
-        problem = self._reach(scene, version, commits, snapshot)
+        frame, (u0, u1), sample_start = request.frame, request.units, request.sample_start
+        out_of_sync, apply_seconds = self.reach(envelope, frame)
         applied = time.perf_counter()
-        if problem is not None:
-            return self._out_of_sync(scene, frame, version, problem)
+        if out_of_sync is not None:
+            return out_of_sync
+        scene, version = envelope.scene, envelope.version
         compiled = self.replicas[scene].at(version)
         if self.delay > 0.0:
             time.sleep(self.delay)
-        settings = settings or compiled.render
-        camera = camera or compiled.camera
+        settings = request.settings or compiled.render
+        camera = request.camera or compiled.camera
         units = WorkUnits(camera.width, camera.height, spans)
         plan = effect_plan(compiled, settings)
         effects = plan.to_json()
@@ -265,7 +268,7 @@ class Tracer:
                 spans=spans,
             )
 
-        result = render_units(u0, u1, applied, applied - start)
+        result = render_units(u0, u1, applied, apply_seconds)
         if pool is not None:
             result.more = self._drain(pool, render_units)
         return result
@@ -295,29 +298,24 @@ class Tracer:
 
     def spot_check(
         self,
-        frame: int,
-        version: int,
-        commits: list[bytes],
-        camera: fmt.Camera | None,
-        settings: fmt.RenderSettings | None,
+        envelope: SceneEnvelope,
+        request: FrameRequest,
         pixels: np.ndarray,
         part_spp: np.ndarray,
         part_start: np.ndarray,
-        snapshot: bytes | None = None,
-        scene: str = DEFAULT_SCENE,
     ) -> "tuple[np.ndarray, np.ndarray] | OutOfSync":
-        """Spot checks of ``pixels`` ((P, 2) y, x) of ``frame`` at ``version`` of ``scene``:
-        samples ``[part_start, part_start + part_spp)`` of each part's stream, per pixel
-        (:func:`tracer.accuracy.spot_check.render_spot_checks`: (PARTS, P, 3) parts and (P,) work),
-        reaching the version first like a render call."""
-        problem = self._reach(scene, version, commits, snapshot)
-        if problem is not None:
-            return self._out_of_sync(scene, frame, version, problem)
-        compiled = self.replicas[scene].at(version)
-        camera = camera or compiled.camera
-        settings = settings or compiled.render
+        """Spot checks of ``pixels`` ((P, 2) y, x) of ``request``'s frame at the version
+        ``envelope`` reaches: samples ``[part_start, part_start + part_spp)`` of each part's
+        stream, per pixel (:func:`tracer.accuracy.spot_check.render_spot_checks`: (PARTS, P, 3)
+        parts and (P,) work)."""
+        out_of_sync, _ = self.reach(envelope, request.frame)
+        if out_of_sync is not None:
+            return out_of_sync
+        compiled = self.replicas[envelope.scene].at(envelope.version)
+        camera = request.camera or compiled.camera
+        settings = request.settings or compiled.render
         return render_spot_checks(
-            compiled, pixels, part_spp, part_start, camera, settings, frame, self.threads
+            compiled, pixels, part_spp, part_start, camera, settings, request.frame, self.threads
         )
 
     def warm_up(self) -> dict:
@@ -349,23 +347,21 @@ class Tracer:
         self,
         origins: np.ndarray,
         directions: np.ndarray,
-        version: int | None = None,
+        envelope: SceneEnvelope | None = None,
         t_max: float | None = None,
-        scene: str = DEFAULT_SCENE,
-        commits: list[bytes] = (),
-        snapshot: bytes | None = None,
     ) -> "SceneHits | OutOfSync":
-        """Single or batched ray queries (Bikker 7.3.6) at ``version`` of ``scene`` (default
-        its newest), reached first with ``commits`` or ``snapshot`` like a render call."""
-        if version is None:
-            replica = self.replica(scene)
+        """Single or batched ray queries (Bikker 7.3.6) at the version ``envelope`` reaches
+        (None, or its version None: the newest held of its scene)."""
+        envelope = envelope or SceneEnvelope()
+        if envelope.version is None:
+            replica = self.replica(envelope.scene)
             if replica is None:
                 raise SceneError("query needs a scene: send a snapshot first")
             return replica.query(origins, directions, None, t_max)
-        problem = self._reach(scene, version, list(commits), snapshot)
-        if problem is not None:
-            return self._out_of_sync(scene, -1, version, problem)
-        return self.replicas[scene].query(origins, directions, version, t_max)
+        out_of_sync, _ = self.reach(envelope)
+        if out_of_sync is not None:
+            return out_of_sync
+        return self.replicas[envelope.scene].query(origins, directions, envelope.version, t_max)
 
     # Introspection and test hooks ------------------------------------------------------------
 

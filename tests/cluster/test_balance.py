@@ -1,4 +1,4 @@
-"""Workload balancers (``cluster.balance``): every split is a valid partition, each balancer
+"""Workload balancers (``cluster.balancing``): every split is a valid partition, each balancer
 does what its formula says, ``cost-aware`` converges, and tracers may come and go."""
 
 import itertools
@@ -9,8 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cluster.balance import (
+from cluster.balancing import (
     BALANCERS,
+    Balancer,
     CostAware,
     Perfect,
     PerfectSmooth,
@@ -154,7 +155,7 @@ def test_more_tracers_than_lines(name):
 @pytest.mark.parametrize("name", NAMES)
 def test_inconsistent_reports_are_refused(name):
     balancer = make_balancer(name)
-    with pytest.raises(ValueError, match="line costs"):
+    with pytest.raises(ValueError, match="unit costs"):
         balancer.observe(10, [TracerReport("a", 0, 10, 1.0, np.ones(9, np.int64))])
     with pytest.raises(ValueError, match="not in"):
         balancer.observe(10, [TracerReport("a", 5, 11, 1.0, np.ones(6, np.int64))])
@@ -168,7 +169,7 @@ def test_inconsistent_reports_are_refused(name):
 
 
 def test_robin_hood_moves_one_unit_from_the_last_to_the_first():
-    balancer = RobinHood()  # 1% of 40 lines: the unit is one line
+    balancer = RobinHood()  # 1% of 40 lines: the step is one line
     ids = ["a", "b", "c", "d"]
     assert balancer.split(40, ids) == [(0, 10), (10, 20), (20, 30), (30, 40)]
     reports = [
@@ -179,16 +180,16 @@ def test_robin_hood_moves_one_unit_from_the_last_to_the_first():
     # c finished last, d first: c gives d one line; a and b keep theirs.
     assert balancer.split(40, ids) == [(0, 10), (10, 20), (20, 29), (29, 40)]
 
-    wider = RobinHood(unit=3)
+    wider = RobinHood(step=3)
     wider.observe(40, reports)
     assert wider.split(40, ids) == [(0, 10), (10, 20), (20, 27), (27, 40)]
     with pytest.raises(ValueError):
-        RobinHood(unit=0)
-    assert [RobinHood().unit_lines(h) for h in (10, 96, 480, 1080)] == [1, 1, 5, 11]
+        RobinHood(step=0)
+    assert [RobinHood().step_units(h) for h in (10, 96, 480, 1080)] == [1, 1, 5, 11]
 
 
 def test_robin_hood_ignores_tracers_without_a_time():
-    balancer = RobinHood(unit=2)
+    balancer = RobinHood(step=2)
     ones = np.ones(10, np.int64)
     balancer.observe(
         30,
@@ -202,7 +203,7 @@ def test_robin_hood_ignores_tracers_without_a_time():
 
 
 def test_robin_hood_gives_no_more_than_it_has_and_handles_newcomers():
-    balancer = RobinHood(unit=5)
+    balancer = RobinHood(step=5)
     balancer.observe(
         10,
         [
@@ -491,3 +492,15 @@ def test_cost_aware_blurs_over_image_lines_within_a_span():
 def test_reports_must_fit_the_spans():
     with pytest.raises(ValueError, match="spans"):
         CostAware().split(10, ["a"], spans=4)
+
+
+@pytest.mark.parametrize("name", sorted(BALANCERS))
+def test_every_balancer_declares_the_interface(name):
+    """Each balancer is a ``Balancer``: a plan (heads and a tail) only from the tail
+    balancers, the split alone from the others; only ``cost-aware-tail`` may use the actor
+    pool."""
+    balancer = make_balancer(name)
+    assert isinstance(balancer, Balancer) and balancer.name == name
+    plan = balancer.plan(40, ["a", "b"])
+    assert (plan is not None) == (name in ("cost-aware", "cost-aware-tail"))
+    assert balancer.remote_pool == (name == "cost-aware-tail")

@@ -9,7 +9,8 @@ import pytest
 import ray
 
 from cluster import connect as connect_module
-from cluster.connect import ClusterUnreachable, connect, disconnect, local_raylet_running
+from cluster.connect import connect, disconnect, local_raylet_running
+from cluster.errors import ClusterUnreachable
 
 
 def fake_gcs() -> tuple[socket.socket, threading.Thread]:

@@ -20,10 +20,13 @@ import ray
 import trimesh
 
 from cluster.assembler import Assembler
-from cluster.balance import BALANCERS, CostAwareTail, idle_percent
-from cluster.connect import ClusterUnreachable, connect, disconnect, probe
-from cluster.coordinator import INLINE_COMMITS, ClusterError, Coordinator, gap_idle_percent
+from cluster.balancing import BALANCERS, CostAwareTail, idle_percent
+from cluster.connect import connect, disconnect, probe
+from cluster.coordinator import Coordinator
+from cluster.errors import ClusterError, ClusterUnreachable
+from cluster.frame import gap_idle_percent
 from cluster.scene_graph import SceneGraph
+from cluster.scene_sync import INLINE_COMMITS
 from tests.scene_states import translation
 from tests.worker.test_replica import CAMERA, studio
 from tracer.compiled.scene import compile_scene
@@ -511,14 +514,14 @@ def test_chunks_of_a_pool_the_tracers_cannot_open_are_handed_out_in_calls(fresh,
     coordinator = fresh(graph, tracers=2)
     coordinator.balancer = always_tail()
     opened = []
-    open_pool = coordinator._open_pool
+    open_pool = coordinator._frames._open_pool
 
     def hidden(job, local):
         open_pool(job, local)
         opened.append(job.pool.path)
         job.pool.path += "-elsewhere"  # what the tracers are told
 
-    monkeypatch.setattr(coordinator, "_open_pool", hidden)
+    monkeypatch.setattr(coordinator._frames, "_open_pool", hidden)
     try:
         frame = coordinator.render_frame(FrameRequest(3))
     finally:
@@ -531,7 +534,7 @@ def test_chunks_of_a_pool_the_tracers_cannot_open_are_handed_out_in_calls(fresh,
     monkeypatch.undo()
     after = coordinator.render_frame(FrameRequest(4))
     assert after.pooled and np.array_equal(after.rgb, reference(graph.state, 4))
-    assert coordinator._pool_tables is not None  # the actor pool: no file for them
+    assert coordinator._pools.tables is not None  # the actor pool: no file for them
     assert "tail" in {r.kind for r in after.ranges}
 
 
@@ -614,7 +617,7 @@ def test_graphs_taking_turns_keep_their_replicas_and_their_pixels(fresh):
         assert np.array_equal(frame.rgb, reference(graph.state, number)), number
         if number >= 2:
             assert frame.resyncs == 0
-    snapshots = {key for key, _ in coordinator._snapshots}
+    snapshots = {key for key, _ in coordinator._sync._snapshots}
     assert snapshots == {own.key, other.key}
     assert all(len(coordinator.info(t).scenes) == 2 for t in coordinator.ready)
 
@@ -646,7 +649,7 @@ def test_large_commit_buffers_go_through_the_object_store(fresh):
     assert len(encode_commit(commit)) > INLINE_COMMITS
     frame = coordinator.render_frame(FrameRequest(1))
     assert np.array_equal(frame.rgb, reference(graph.state, 1))
-    assert list(coordinator._buffers) == [(graph.key, 0, 1)]  # one put for both tracers
+    assert list(coordinator._sync._buffers) == [(graph.key, 0, 1)]  # one put for both tracers
 
 
 def test_the_assembler_takes_only_what_it_assigned():
@@ -765,7 +768,7 @@ def test_a_node_removed_mid_animation_does_not_stop_the_job(headless_cluster):
         for frame in frames:
             assert np.array_equal(frame.rgb, expected[frame.frame]), frame.frame
         # Tracers on two nodes: the tail went to the actor pool, both claimed from it.
-        assert coordinator._pool_tables is not None and frames[0].pooled
+        assert coordinator._pools.tables is not None and frames[0].pooled
         assert {r.tracer for r in frames[0].ranges if r.kind == "tail"} == {"t0", "t1"}
         assert coordinator.stats["failures"] >= 1 and coordinator.stats["reassigned"] >= 1
         assert {r.tracer for f in frames[8:] for r in f.ranges} == {"t0"}
@@ -791,18 +794,18 @@ def test_a_lost_pool_actor_costs_no_frame_and_no_tracer(headless_cluster):
             graph, balancer="cost-aware-tail", straggler_floor=30, delays=[0.05, 0.05]
         )
         frames = [coordinator.render_frame(FrameRequest(0))]
-        ray.kill(coordinator._pool_tables)  # between frames: the next one finds it dead
+        ray.kill(coordinator._pools.tables)  # between frames: the next one finds it dead
         frames.append(coordinator.render_frame(FrameRequest(1)))
         job = coordinator.submit_frame(FrameRequest(2))
         time.sleep(0.02)  # mid-frame, while the tracers render their heads
-        if coordinator._pool_tables is not None:
-            ray.kill(coordinator._pool_tables)
+        if coordinator._pools.tables is not None:
+            ray.kill(coordinator._pools.tables)
         frames.append(coordinator.wait_frame(job))
         frames += [coordinator.render_frame(FrameRequest(k)) for k in (3, 4)]
         for frame in frames:
             assert np.array_equal(frame.rgb, reference(graph.state, frame.frame)), frame.frame
         assert coordinator.stats["failures"] == 0
-        assert ray.get(coordinator._pool_tables.rows.remote(-1), timeout=10) == []  # a new one
+        assert ray.get(coordinator._pools.tables.rows.remote(-1), timeout=10) == []  # a new one
         assert frames[-1].pooled and "tail" in {r.kind for r in frames[-1].ranges}
     finally:
         if coordinator is not None:

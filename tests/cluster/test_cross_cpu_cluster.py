@@ -32,6 +32,7 @@ from tests.tracer.test_cross_cpu import (
 from tracer.request import FrameRequest
 from tracer.scene.format import override
 from tracer.scene.loader import load_scene
+from worker.envelope import SceneEnvelope
 
 WIDTH, HEIGHT, SPP = 48, 32, 2
 
@@ -78,7 +79,9 @@ def test_tracer_on_another_cpu_renders_the_same_frame(
         # its compiled scene or intersection code shows here even where pixels round it away.
         queries = {
             (t, label): ray.get(
-                coordinator.tracer_handle(t).query.remote(o, d, scene=coordinator.graph.key)
+                coordinator.tracer_handle(t).query.remote(
+                    o, d, SceneEnvelope(coordinator.graph.key)
+                )
             )
             for t in (host, other)
             for label, o, d in query_rays(state.camera)

@@ -10,7 +10,9 @@ import pytest
 from tests.worker.test_replica import studio
 from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
+from tracer.request import FrameRequest
 from tracer.scene.codec import encode_state
+from worker.envelope import SceneEnvelope
 from worker.remote_pool import WAIT, PoolTables, RemotePool, remote_tables
 from worker.tracer_actor import Tracer
 
@@ -68,14 +70,18 @@ def test_a_tracer_renders_its_head_then_the_chunks_it_claims(ray_session):
     width = state.camera.width
     tables = remote_tables(ray.get_runtime_context().get_node_id())
     pool = RemotePool.create(tables, [(20, 24), (0, 3), (8, 9)], 0)
-    out = tracer.render(2, 0, [], None, None, 3, 8, pool=(pool.ticket, 5))
+    out = tracer.render(
+        SceneEnvelope(version=0), FrameRequest(2, units=(3, 8)), pool=(pool.ticket, 5)
+    )
     assert pool.claimed(5) == [(20, 24), (0, 3), (8, 9)]
     assert np.array_equal(out.rgb, expected[3 * width : 8 * width])
     assert [(c.u0, c.u1) for c in out.more] == [(20, 24), (0, 3), (8, 9)]
     for chunk in out.more:
         assert np.array_equal(chunk.rgb, expected[chunk.u0 * width : chunk.u1 * width])
     pool.unlink()
-    late = tracer.render(2, 0, [], None, None, 0, 1, pool=(pool.ticket, 5))
+    late = tracer.render(
+        SceneEnvelope(version=0), FrameRequest(2, units=(0, 1)), pool=(pool.ticket, 5)
+    )
     assert late.more == []  # closed: nothing left to claim
     ray.kill(tables)
 
@@ -95,5 +101,7 @@ def test_a_lost_pool_actor_ends_the_claims_not_the_render(ray_session):
     ray.kill(tables)
     with pytest.raises(PoolLost):
         pool.claimed()
-    out = tracer.render(2, 0, [], None, None, 3, 8, pool=(pool.ticket, 1))
+    out = tracer.render(
+        SceneEnvelope(version=0), FrameRequest(2, units=(3, 8)), pool=(pool.ticket, 1)
+    )
     assert (out.u0, out.u1) == (3, 8) and out.more == []

@@ -14,7 +14,9 @@ from cluster.scene_graph import SceneGraph
 from tests.worker.test_replica import studio
 from tracer.compiled.scene import compile_scene
 from tracer.render import render_image
+from tracer.request import FrameRequest
 from tracer.scene.codec import encode_commit, encode_state
+from worker.envelope import DEFAULT_SCENE, SceneEnvelope
 from worker.line_pool import LinePool
 from worker.tracer_actor import MAX_SCENES, OutOfSync, Tracer, UnitsResult, remote_tracer
 from worker.work_units import WorkUnits
@@ -27,14 +29,26 @@ def reference(state, frame=0, sample_start=0) -> np.ndarray:
     return render_image(compile_scene(state), frame=frame, sample_start=sample_start)[0]
 
 
-def rendered(tracer, version, commits=(), frame=0, ranges=None, spans=1, **kw) -> np.ndarray:
+def rendered(
+    tracer,
+    version,
+    commits=(),
+    frame=0,
+    ranges=None,
+    spans=1,
+    sample_start=0,
+    snapshot=None,
+    scene=DEFAULT_SCENE,
+) -> np.ndarray:
     """The frame assembled from ``tracer.render`` calls over unit ``ranges`` (default one
     call), ``spans`` units per line."""
     camera = studio().camera
     units = WorkUnits(camera.width, camera.height, spans)
     parts = []
     for u0, u1 in ranges or [(0, units.count)]:
-        out = tracer.render(frame, version, list(commits), None, None, u0, u1, spans=spans, **kw)
+        envelope = SceneEnvelope(scene, version, list(commits), snapshot)
+        request = FrameRequest(frame, sample_start=sample_start, units=(u0, u1))
+        out = tracer.render(envelope, request, spans=spans)
         assert isinstance(out, UnitsResult), out
         assert (out.frame, out.version, out.u0, out.u1, out.spans) == (
             frame,
@@ -58,7 +72,7 @@ def test_tracer_renders_like_render_image():
     """Any split of the lines, any thread count: the pixels of render_image, bit for bit."""
     state = studio()
     tracer = Tracer("t", cpus=2)
-    assert tracer.kernel.threads == 2 and tracer.version() is None
+    assert tracer.threads == 2 and tracer.version() is None
     assert tracer.sync_snapshot(encode_state(state)) == 0
     expected = reference(state, frame=5, sample_start=3)
     assert np.array_equal(rendered(tracer, 0, frame=5, sample_start=3), expected)
@@ -79,8 +93,10 @@ def test_spans_of_lines_render_like_whole_lines():
     units = WorkUnits(state.camera.width, state.camera.height, 8)
     cuts = [(0, 5), (5, 6), (6, 61), (61, units.count)]
     assert np.array_equal(rendered(tracer, 0, frame=1, ranges=cuts, spans=8), expected)
-    whole = tracer.render(1, 0, [], None, None, 0, state.camera.height)
-    spans = tracer.render(1, 0, [], None, None, 0, units.count, spans=8)
+    whole = tracer.render(SceneEnvelope(version=0), FrameRequest(1, units=(0, state.camera.height)))
+    spans = tracer.render(
+        SceneEnvelope(version=0), FrameRequest(1, units=(0, units.count)), spans=8
+    )
     assert np.array_equal(units.per_line(spans.cost), whole.cost)
     assert np.array_equal(units.per_line(spans.rays), whole.rays)
 
@@ -95,7 +111,9 @@ def test_a_pooled_call_renders_its_range_then_every_chunk_it_claims():
     expected = reference(state, frame=2).reshape(-1, state.camera.width, 3)
     pool = LinePool.create([(20, 24), (0, 3), (8, 9)])
     try:
-        out = tracer.render(2, 0, [], None, None, 3, 8, pool=(pool.path, 5))
+        out = tracer.render(
+            SceneEnvelope(version=0), FrameRequest(2, units=(3, 8)), pool=(pool.path, 5)
+        )
         assert pool.claimed(5) == [(20, 24), (0, 3), (8, 9)]
     finally:
         pool.unlink()
@@ -110,12 +128,16 @@ def test_a_pooled_call_renders_its_range_then_every_chunk_it_claims():
         assert chunk.cost.shape == chunk.rays.shape == (chunk.u1 - chunk.u0,)
         assert chunk.seconds > 0.0 and chunk.apply_seconds == 0.0
     with LinePool.create([(9, 12)]) as second:
-        only = tracer.render(2, 0, [], None, None, 4, 4, pool=(second.path, 0))
+        only = tracer.render(
+            SceneEnvelope(version=0), FrameRequest(2, units=(4, 4)), pool=(second.path, 0)
+        )
         second.unlink()
     assert only.rgb.shape == (0, 3) and only.cost.shape == (0,)
     assert [(c.u0, c.u1) for c in only.more] == [(9, 12)]
     assert np.array_equal(only.more[0].rgb, lines(9, 12))
-    late = tracer.render(2, 0, [], None, None, 0, 1, pool=(second.path, 0))
+    late = tracer.render(
+        SceneEnvelope(version=0), FrameRequest(2, units=(0, 1)), pool=(second.path, 0)
+    )
     assert late.more is None and np.array_equal(late.rgb, lines(0, 1))  # no pool here
 
 
@@ -140,15 +162,18 @@ def test_out_of_sync_says_what_it_holds():
     graph = SceneGraph(studio())
     snapshot_0 = encode_state(graph.snapshot())
     tracer = Tracer("t", cpus=1)
-    out = tracer.render(0, 0, [], None, None, 0, 24)
+    out = tracer.render(SceneEnvelope(version=0), FrameRequest(0, units=(0, 24)))
     assert isinstance(out, OutOfSync) and out.have is None and out.incarnation
     tracer.sync_snapshot(snapshot_0)
     commits = [encode_commit(graph.commit([MOVE])) for _ in range(1)]
     commits += [encode_commit(graph.commit([SKY])), encode_commit(graph.commit([MOVE]))]
-    gap = tracer.render(0, 3, [commits[0], commits[2]], None, None, 0, 24)
+    whole = FrameRequest(0, units=(0, 24))
+    gap = tracer.render(SceneEnvelope(version=3, commits=[commits[0], commits[2]]), whole)
     assert isinstance(gap, OutOfSync) and gap.have == 1 and "cannot apply" in gap.reason
-    assert isinstance(tracer.render(0, 3, commits, None, None, 0, 24), UnitsResult)
-    dropped = tracer.render(0, 0, [], None, None, 0, 24)  # holds versions 2 and 3 only
+    assert isinstance(tracer.render(SceneEnvelope(version=3, commits=commits), whole), UnitsResult)
+    dropped = tracer.render(
+        SceneEnvelope(version=0), FrameRequest(0, units=(0, 24))
+    )  # holds versions 2 and 3 only
     assert isinstance(dropped, OutOfSync) and dropped.have == 3
     repaired = rendered(tracer, 0, [], snapshot=snapshot_0)
     assert np.array_equal(repaired, reference(studio()))
@@ -183,7 +208,7 @@ def test_scenes_are_kept_apart_and_the_least_recently_used_is_dropped():
     for k in range(MAX_SCENES - 1):  # "plain" was used before "moved": it goes first
         tracer.sync_snapshot(encode_state(plain), f"other-{k}")
     assert "plain" not in tracer.info().scenes and tracer.version("moved") == 1
-    lost = tracer.render(0, 0, [], None, None, 0, 24, scene="plain")
+    lost = tracer.render(SceneEnvelope("plain", 0), FrameRequest(0, units=(0, 24)))
     assert isinstance(lost, OutOfSync) and (lost.scene, lost.have) == ("plain", None)
 
 
@@ -194,11 +219,11 @@ def test_query_reaches_the_version_it_asks_for():
     tracer = Tracer("q", cpus=1)
     tracer.sync_snapshot(encode_state(graph.state), "g")
     down = ([[0.5, 3.5, 0.3]], [[0.0, -1.0, 0.0]])  # straight down onto box-a once it moved
-    before = tracer.query(*down, version=0, scene="g")
+    before = tracer.query(*down, SceneEnvelope("g", 0))
     commit = graph.commit([MOVE])
-    after = tracer.query(*down, version=1, scene="g", commits=[encode_commit(commit)])
+    after = tracer.query(*down, SceneEnvelope("g", 1, [encode_commit(commit)]))
     assert before.node[0] != after.node[0] and after.t[0] < before.t[0]
-    missing = tracer.query(*down, version=5, scene="g")
+    missing = tracer.query(*down, SceneEnvelope("g", 5))
     assert isinstance(missing, OutOfSync) and missing.have == 1
 
 
@@ -214,12 +239,16 @@ def test_actor_renders_from_a_snapshot_in_the_object_store(ray_session):
     try:
         snapshot = ray.put(encode_state(graph.snapshot()))
         assert ray.get(actor.sync_snapshot.remote(snapshot)) == 0
-        out = ray.get(actor.render.remote(2, 0, [], None, None, 0, 24, 0))
+        out = ray.get(actor.render.remote(SceneEnvelope(version=0), FrameRequest(2, units=(0, 24))))
         assert np.array_equal(out.rgb, expected.reshape(-1, 3))
         assert out.pid != os.getpid()
         assert out.node == ray.get_runtime_context().get_node_id()
         commit = encode_commit(graph.commit([MOVE]))
-        out = ray.get(actor.render.remote(2, 1, [commit], None, None, 0, 24, 0))
+        out = ray.get(
+            actor.render.remote(
+                SceneEnvelope(version=1, commits=[commit]), FrameRequest(2, units=(0, 24))
+            )
+        )
         assert np.array_equal(out.rgb, reference(graph.state, frame=2).reshape(-1, 3))
         assert ray.get(actor.version.remote()) == 1
     finally:
@@ -262,7 +291,7 @@ def test_a_restarted_actor_comes_back_empty_and_says_so(ray_session):
     try:
         ray.get(actor.sync_snapshot.remote(encode_state(state)))
         before = ray.get(actor.info.remote())
-        pending = actor.render.remote(0, 0, [], None, None, 0, 24, 0)
+        pending = actor.render.remote(SceneEnvelope(version=0), FrameRequest(0, units=(0, 24)))
         time.sleep(0.5)
         ray.kill(actor, no_restart=False)
         with pytest.raises(ray.exceptions.RayActorError):
@@ -271,10 +300,14 @@ def test_a_restarted_actor_comes_back_empty_and_says_so(ray_session):
         assert after.pid != before.pid and after.incarnation != before.incarnation
         assert after.version is None
         ray.get(actor.set_delay.remote(0.0))
-        out = ray.get(actor.render.remote(0, 0, [], None, None, 0, 24, 0))
+        out = ray.get(actor.render.remote(SceneEnvelope(version=0), FrameRequest(0, units=(0, 24))))
         assert isinstance(out, OutOfSync) and out.have is None
         snapshot = ray.put(encode_state(state))
-        out = ray.get(actor.render.remote(0, 0, [], None, None, 0, 24, 0, snapshot))
+        out = ray.get(
+            actor.render.remote(
+                SceneEnvelope(version=0, snapshot=snapshot), FrameRequest(0, units=(0, 24))
+            )
+        )
         assert np.array_equal(out.rgb, reference(state).reshape(-1, 3))
     finally:
         ray.kill(actor)
