@@ -12,7 +12,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from cluster.balance import DEFAULT_BALANCER
+from cluster.balancing import DEFAULT_BALANCER
 
 ENV_PREFIX = "TILERENDER_"
 MiB = 1024 * 1024
@@ -86,7 +86,7 @@ class Settings(BaseModel):
     @field_validator("balancer")
     @classmethod
     def _known_balancer(cls, value: str) -> str:
-        from cluster.balance import BALANCERS
+        from cluster.balancing import BALANCERS
 
         if value not in BALANCERS:
             raise ValueError(f"unknown balancer {value!r} (known: {', '.join(sorted(BALANCERS))})")

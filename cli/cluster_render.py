@@ -7,7 +7,7 @@ from pathlib import Path
 
 from cli.errors import CommandFailed
 from cli.output import note_compiling, progress_bar, stderr, write_output
-from cluster.balance import DEFAULT_BALANCER
+from cluster.balancing import DEFAULT_BALANCER
 from cluster.jobs import embedded_ray_cpus
 from cluster.progressive import Goal, ProgressiveFrame, render_progressive
 from tracer.io.metadata import image_metadata

@@ -340,7 +340,7 @@ def add_bench_parser(sub) -> None:
 
 
 def add_cluster_options(parser: argparse.ArgumentParser, frames: bool = True) -> None:
-    from cluster.balance import BALANCERS, DEFAULT_BALANCER  # light: numpy only
+    from cluster.balancing import BALANCERS, DEFAULT_BALANCER  # light: numpy only
 
     parser.add_argument(
         "--tracers",

@@ -84,7 +84,8 @@ from cluster.balancing import DEFAULT_BALANCER, Balancer, make_balancer
 from cluster.connect import connect
 from cluster.fleet import Fleet, TracerSlot, first_line, log
 from cluster.frame import Frame
-from cluster.frame_run import FrameJob, FrameRunner, Limits
+from cluster.frame_job import FrameJob, Limits
+from cluster.frame_run import FrameRunner
 from cluster.pools import SharedPools
 from cluster.scene_graph import SceneGraph
 from cluster.scene_sync import SceneSync

@@ -11,7 +11,6 @@ failures, then tells the balancer what each tracer did.
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass, field
 
 import numpy as np
 import ray
@@ -19,96 +18,21 @@ from ray.exceptions import RayActorError, RayTaskError
 
 from cluster.assembler import Assembler, runs
 from cluster.balancing import Balancer, TracerReport, even_split
-from cluster.balancing.tail_plan import TailPlan
 from cluster.errors import ClusterError
 from cluster.fleet import Fleet, TracerSlot, first_line, log
 from cluster.frame import Frame, RangeReport, gap_idle_percent
+from cluster.frame_job import Call, FrameJob, Limits
 from cluster.pools import SharedPools
 from cluster.scene_graph import SceneGraph
 from cluster.scene_sync import SceneSync, held
 from cluster.stragglers import stragglers
 from tracer.request import FrameRequest
-from tracer.scene.model import SceneState
 from worker.envelope import SceneEnvelope
-from worker.line_pool import LinePool
-from worker.remote_pool import PoolLost, RemotePool
-from worker.tracer_actor import OutOfSync, UnitsResult
+from worker.remote_pool import PoolLost
+from worker.tracer_actor import OutOfSync
 from worker.work_units import WorkUnits
 
 POLL_SECONDS = 0.02
-
-
-@dataclass(frozen=True)
-class Limits:
-    """How long a frame may take and how often a range may be handed out."""
-
-    straggler_factor: float
-    """A range is a straggler after this many times its predicted time ..."""
-    straggler_floor: float
-    """... plus this many seconds (Ray call latency and timing jitter of tiny frames)."""
-    max_attempts: int
-    """Times a unit range may be handed out (failures, resyncs) before the frame is given up."""
-    stall_timeout: float
-    """Seconds a frame may go without any result arriving before it is given up."""
-
-
-@dataclass(eq=False)
-class Call:
-    """One render call of a frame in flight."""
-
-    slot: TracerSlot
-    u0: int
-    u1: int
-    kind: str
-    attempt: int
-    submitted: float
-    duplicated: bool = False
-    resent: bool = False
-    """Sent again after OutOfSync (a second OutOfSync gets a snapshot)."""
-    owner: int | None = None
-    """The tracer's id in the frame's shared pool (None: the call takes no chunks)."""
-
-
-@dataclass(eq=False)
-class FrameJob:
-    """A frame in flight; ``Coordinator.wait_frame`` turns it into a :class:`Frame`."""
-
-    request: FrameRequest
-    """The frame's request, resolved at the version it is pinned to."""
-    graph: SceneGraph
-    state: SceneState
-    units: WorkUnits
-    assembler: Assembler
-    submitted: float
-    split: list[tuple[str, int, int]] = field(default_factory=list)
-    pending: dict = field(default_factory=dict)
-    ranges: list[RangeReport] = field(default_factory=list)
-    busy: dict[str, float] = field(default_factory=dict)
-    primary: dict[str, UnitsResult] = field(default_factory=dict)
-    tail: TailPlan | None = None
-    """The dynamic tail's units not handed out yet (``cost-aware-tail``)."""
-    pool: LinePool | RemotePool | None = None
-    """The dynamic tail as a shared pool: a file when every tracer shares this machine."""
-    pool_chunks: list[tuple[int, int]] = field(default_factory=list)
-    """The pool's chunks, as written into it."""
-    arrivals: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
-    """Per tracer, (arrival time, busy seconds) of each accepted result, in arrival order."""
-    late_heads: dict[str, float] = field(default_factory=dict)
-    """Render seconds of heads whose units a copy had delivered first (stragglers)."""
-    result: Frame | None = None
-    calls: int = 0
-    failures: int = 0
-    reassigned: int = 0
-    duplicates: int = 0
-    resyncs: int = 0
-
-    @property
-    def frame(self) -> int:
-        return self.request.frame
-
-    @property
-    def version(self) -> int:
-        return self.state.version
 
 
 class FrameRunner:

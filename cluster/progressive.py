@@ -38,7 +38,7 @@ from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
 if TYPE_CHECKING:
-    from cluster.coordinator import Frame
+    from cluster.frame import Frame
     from cluster.scene_graph import SceneGraph
 
 MAX_PART_SPP = 64

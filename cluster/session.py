@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cluster.coordinator import Coordinator, Frame
+from cluster.coordinator import Coordinator
+from cluster.frame import Frame
 from cluster.scene_graph import SceneGraph
 from tracer.maths import portable
 from tracer.request import FrameRequest

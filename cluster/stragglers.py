@@ -3,22 +3,19 @@ units are then duplicated to an idle tracer (whichever copy arrives first is use
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cluster.fleet import TracerSlot, log
-
-if TYPE_CHECKING:
-    from cluster.frame_run import Call, FrameJob, Limits
+from cluster.frame_job import Call, FrameJob, Limits
 
 
 def stragglers(
-    job: "FrameJob",
+    job: FrameJob,
     idle: list[TracerSlot],
-    limits: "Limits",
-    owed: Callable[["FrameJob", "Call"], list[tuple[int, int]]],
-) -> list[tuple["Call", TracerSlot, list[tuple[int, int]]]]:
+    limits: Limits,
+    owed: Callable[[FrameJob, Call], list[tuple[int, int]]],
+) -> list[tuple[Call, TracerSlot, list[tuple[int, int]]]]:
     """Calls of ``job`` to duplicate now: (the call, the ``idle`` tracer to take it, its
     units not delivered yet). A call is late after ``straggler_factor`` x its predicted time
     plus ``straggler_floor`` seconds; the prediction is the frame's median apply seconds plus

@@ -10,7 +10,7 @@ router = APIRouter(prefix="/cluster", tags=["cluster"])
 
 
 def cluster_public(ctx: Ctx) -> ClusterPublic:
-    from cluster.balance import BALANCERS
+    from cluster.balancing import BALANCERS
 
     service = ctx.service
     info = service.cluster_info
@@ -55,7 +55,7 @@ async def cluster_status(ctx: Ctx) -> ClusterPublic:
 @router.put("/balancer", response_model=ClusterPublic, responses=errors(503, 504))
 async def set_balancer(body: BalancerUpdate, ctx: Ctx) -> ClusterPublic:
     """Choose the balancer (from the next frame on)."""
-    from cluster.balance import BALANCERS
+    from cluster.balancing import BALANCERS
 
     if body.name not in BALANCERS:
         raise ApiError(

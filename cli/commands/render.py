@@ -24,7 +24,7 @@ embedded Ray alone takes about 4.5 s (docs/performance.md, Start-up)."""
 def run(args: argparse.Namespace) -> int:
     """Render through the coordinator: tracer actors on Ray (embedded unless --ray-address)."""
     output = output_path(args.output)
-    from cluster.balance import make_balancer
+    from cluster.balancing import make_balancer
 
     if args.balancer is not None:  # a wrong name fails before Ray starts
         try:

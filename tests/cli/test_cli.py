@@ -670,7 +670,7 @@ def test_serve_balancer_flag_overrides_the_environment_only_when_given(monkeypat
 
 
 def _cluster_error():
-    from cluster.coordinator import ClusterError
+    from cluster.errors import ClusterError
 
     return ClusterError("no tracer is left to render with")
 
