@@ -32,7 +32,7 @@ Set-up (every balancer sees exactly the same frames, speeds and noise):
   infinitely divisible work, so tracer i takes ``T0 * jitter_i + overhead``. In expectation no
   split of whole units, known in advance, does better.
 
-Writes ``bench/results/balance_sim.json`` and, when matplotlib is installed (the ``peers``
+Writes ``bench/results/balance_sim.json`` and, when matplotlib is installed (the ``study``
 extra), ``bench/results/balance_sim.png`` (idle % per frame, after Bikker's figure 48).
 """
 

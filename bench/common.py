@@ -314,13 +314,13 @@ class TreeWorker:
 
 def pyplot():
     """matplotlib's pyplot on the Agg backend, or None (with a note) when matplotlib is not
-    installed (it comes with the ``peers`` extra)."""
+    installed (it comes with the ``study`` extra)."""
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        note("matplotlib is not installed (pip install -e '.[peers]'): no plot written")
+        note("matplotlib is not installed (pip install -e '.[study]'): no plot written")
         return None
     return plt

@@ -2,18 +2,36 @@
 per scene, and its report (``cli.accuracy_report``)."""
 
 import argparse
+import importlib.util
 from pathlib import Path
 
 from cli.accuracy import DEFAULT_CACHE, REPO_ROOT, StudyOptions, run_study
 from cli.accuracy_metrics import refresh_time_to
 from cli.accuracy_report import load_previous, write_report
 from cli.commands.samples import REPO_SCENES, sample_scene_files
-from cli.errors import UsageError
+from cli.errors import CommandFailed, UsageError
 from cli.output import note_compiling, progress_bar, stderr
+
+STUDY_LIBRARIES = {"skimage": "scikit-image", "flip_evaluator": "flip-evaluator",
+                   "matplotlib": "matplotlib"}  # fmt: skip
+"""The ``study`` extra's modules (pyproject.toml) and their packages."""
+
+
+def require_study_extra() -> None:
+    """Refuse to start the study without its libraries, naming what to install."""
+    missing = [
+        pkg for module, pkg in STUDY_LIBRARIES.items() if not importlib.util.find_spec(module)
+    ]
+    if missing:
+        raise CommandFailed(
+            f"the accuracy study needs {', '.join(missing)}: install the 'study' extra "
+            "(pip install 'tilerender[study]'; ./dev installs it)"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
     """``bench accuracy``: the accuracy study (cli.accuracy), with a progress bar per scene."""
+    require_study_extra()
     root = REPO_SCENES
     available = {path.parent.name: path for path in sample_scene_files(root)}
     names = args.scenes or sorted(available)

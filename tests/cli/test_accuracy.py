@@ -355,6 +355,22 @@ def test_bench_accuracy_refuses_bad_options(capsys, tmp_path, argv, words):
     assert not (tmp_path / "out").exists()
 
 
+def test_bench_accuracy_without_the_study_extra_names_it(capsys, tmp_path, monkeypatch):
+    """Without the 'study' extra's libraries (a runtime-only install) the study stops at once
+    with one line naming what to install, and writes nothing."""
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "skimage" else find_spec(name)
+    )
+    code, _, err = run(capsys, "bench", "accuracy", "--out", tmp_path / "out", "-q")
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 1 and len(lines) == 1, err
+    assert "scikit-image" in lines[0] and "study" in lines[0] and "internal" not in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
 def test_bench_needs_a_study(capsys):
     code, _, err = run(capsys, "bench")
     assert code == 2 and "STUDY" in err
