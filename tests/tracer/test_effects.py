@@ -1,4 +1,4 @@
-"""The effect plan (``tracer.integrators.effects``): its rules on small scenes, the user's
+"""The effect plan (``tracer.integrators.plan``): its rules on small scenes, the user's
 switches, and the proof that it is free of error: for every sample scene the plan's image agrees
 with the all-effects image (bit for bit at the same seed, and by a Z-test at independent seeds),
 and in a scene that needs an effect, dropping it changes the image (so the plan must keep it)."""
@@ -11,7 +11,8 @@ from tests.helpers import compile_dict, tiny_scene
 from tests.stats import pass_statistics, welch_pixel_test
 from tracer.compiled.scene import compile_scene
 from tracer.integrators import effects
-from tracer.integrators.effects import ALL, EffectPlan, effect_plan, needed_effects
+from tracer.integrators.effects import ALL
+from tracer.integrators.plan import EffectPlan, effect_plan, needed_effects
 from tracer.render import render_image
 from tracer.scene.format import override
 from tracer.scene.loader import load_scene

@@ -19,7 +19,7 @@ from tests.helpers import compile_dict, mean_and_error, render_passes, tiny_scen
 from tests.tracer.test_integrators import agree, passes_with_plan
 from tracer.errors import SceneError
 from tracer.integrators import effects
-from tracer.integrators.effects import EffectPlan, effect_plan, needed_effects
+from tracer.integrators.plan import EffectPlan, effect_plan, needed_effects
 from tracer.scene import format as fmt
 from tracer.scene.checks import check_state
 from tracer.scene.codec import decode_state, encode_state

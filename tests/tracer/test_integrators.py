@@ -16,7 +16,7 @@ from tracer.compiled.scene import compile_scene
 from tracer.integrators import effects
 from tracer.integrators import path as integrator
 from tracer.integrators import surface as surface_integrators
-from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.plan import EffectPlan, effect_plan
 from tracer.io.heatmap import cost_heatmap
 from tracer.render import render_image
 from tracer.scene.format import override

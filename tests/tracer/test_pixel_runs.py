@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from tests.helpers import compile_dict
 from tracer.integrators import effects
-from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.plan import EffectPlan, effect_plan
 from tracer.render import render_image, render_lines, render_pixels
 from tracer.scene.format import override
 

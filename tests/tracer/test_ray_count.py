@@ -13,7 +13,7 @@ import pytest
 from tests.helpers import CORNELL, compile_dict, two_planes
 from tracer.compiled.scene import compile_scene
 from tracer.integrators import effects
-from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.plan import EffectPlan, effect_plan
 from tracer.render import render_image, render_lines
 from tracer.scene.format import override
 from tracer.scene.loader import load_scene

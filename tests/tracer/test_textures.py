@@ -18,7 +18,7 @@ from tracer.compiled.scene import compile_scene
 from tracer.errors import SceneError
 from tracer.geometry.scene_intersect import scene_closest
 from tracer.integrators import effects
-from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.plan import EffectPlan, effect_plan
 from tracer.render import render_image, render_lines
 from tracer.scene import format as fmt
 from tracer.scene.codec import decode_state, encode_state

@@ -23,7 +23,6 @@ traversals it contains) cost half of the kernel's compile time.
 import math
 
 import numpy as np
-from numba import literally
 
 from tracer.compiled.arrays import borrow_scene
 from tracer.geometry.scene_intersect import (
@@ -382,7 +381,6 @@ def path_kernel(materials: bool, lights: bool):
 
 KERNELS = {(m, o): path_kernel(m, o) for m in (False, True) for o in (False, True)}
 """The path kernel's four builds, by (materials, lights); ``kernel_for`` picks one for a plan."""
-render_pixels_all = KERNELS[(True, True)]
 
 
 def kernel_for(plan: int):
@@ -392,17 +390,3 @@ def kernel_for(plan: int):
     materials = (plan & (effects.MATERIAL_EFFECTS | effects.MATERIAL_BUILD)) != 0
     lights = (plan & (effects.POINT_LIGHTS | effects.SUN | effects.SKY)) != 0
     return KERNELS[(materials, lights)]
-
-
-@jit
-def render_pixels_specialised(scene, camera, width, height, p0, p1, sample_start, spp, max_depth,
-                              rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride,
-                              stack_node, stack_t, out_rgb, out_cost, out_rays):  # fmt: skip
-    """The path kernel compiled for one plan and mode: ``numba.literally`` makes both constants,
-    so numba compiles (and caches) one kernel per value and LLVM removes every branch the plan
-    switches off. Kept to measure against the runtime flags (``docs/effects.md``)."""
-    literally(mode)
-    literally(plan)
-    render_pixels_all(scene, camera, width, height, p0, p1, sample_start, spp, max_depth,
-                      rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride, stack_node,
-                      stack_t, out_rgb, out_cost, out_rays)  # fmt: skip

@@ -42,7 +42,7 @@ AO = 0
 ALBEDO = 1
 NORMAL = 2
 DEPTH = 3
-OUTPUTS = {"ao": AO, "albedo": ALBEDO, "normal": NORMAL, "depth": DEPTH}
+"""The outputs of ``render_surface`` (the integrators ``ao``, ``albedo``, ``normal``, ``depth``)."""
 
 
 @jit
