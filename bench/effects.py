@@ -166,8 +166,8 @@ def scene_states(args: argparse.Namespace):
 
 def measure_scenes(args: argparse.Namespace) -> dict:
     from tracer.compiled.scene import compile_scene
-    from tracer.integrators.effects import ALL, EFFECTS
-    from tracer.integrators.plan import EffectPlan, effect_plan
+    from tracer.integrators.effects import EffectPlan, effect_plan
+    from tracer.integrators.flags import ALL, EFFECTS
     from tracer.render import render_image
     from tracer.scene.format import override
 
@@ -279,7 +279,7 @@ start = time.perf_counter()
 sys.path.insert(0, "bench")
 from effects import render_specialised
 from tracer.compiled.scene import compile_scene
-from tracer.integrators.plan import effect_plan
+from tracer.integrators.effects import effect_plan
 from tracer.scene.loader import load_scene
 from tracer.render import render_image
 from tracer.scene.format import override

@@ -1,7 +1,7 @@
 """Public entry points: render a pixel run or a line range, or a whole image with progress.
 
 ``render.integrator`` picks the kernel through the registry (``tracer.integrators.registry``),
-under the effect plan (``tracer.integrators.plan``).
+under the effect plan (``tracer.integrators.effects``).
 
 ``render_pixels`` renders any run [p0, p1) of a frame's pixels in row-major order, and
 ``render_lines`` the line-aligned run [y0 * W, y1 * W): what a tracer runs for its share of a
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tracer.compiled.scene import CompiledScene
+from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.integrators.pixels import pixel_run, trace_run
-from tracer.integrators.plan import EffectPlan, effect_plan
 from tracer.integrators.registry import REGISTRY
 from tracer.io.heatmap import cost_heatmap
 from tracer.scene import format as fmt
@@ -74,7 +74,7 @@ def render_lines(
     Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
     sample ranges give independent estimates that average to the larger render. ``threads``
     defaults to every CPU this process may use. ``plan`` is the effect plan (default: the one
-    ``tracer.integrators.plan.effect_plan`` makes of the scene and settings).
+    ``tracer.integrators.effects.effect_plan`` makes of the scene and settings).
     """
     camera = camera or scene.camera
     if not 0 <= y0 < y1 <= camera.height:

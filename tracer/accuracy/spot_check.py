@@ -23,7 +23,7 @@ from tracer.accuracy.error_estimate import (
     pixels_to_check,
 )
 from tracer.compiled.scene import CompiledScene
-from tracer.integrators.plan import EffectPlan, effect_plan
+from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.kernel.threads import default_threads, run_parts
 from tracer.render import render_pixels
 from tracer.scene import format as fmt

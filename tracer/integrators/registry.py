@@ -15,7 +15,8 @@ import numpy as np
 from tracer import config
 from tracer.compiled.arrays import SceneArrays
 from tracer.compiled.scene import CompiledScene
-from tracer.integrators import effects, path, surface
+from tracer.integrators import path, surface
+from tracer.integrators.flags import INDIRECT, TEXTURES, light_kinds
 from tracer.integrators.pixels import PixelRun
 from tracer.maths import portable
 from tracer.shading.lights import light_arrays, scene_fields
@@ -45,7 +46,7 @@ class Integrator:
 def arrays_for_plan(scene: CompiledScene, flags: int) -> SceneArrays:
     """The scene's arrays with only the lights a plan's flags keep (the same arrays when they
     keep every light the scene has)."""
-    kinds = effects.light_kinds(flags)
+    kinds = light_kinds(flags)
     present = {int(k) for k in scene.lights.kind[scene.lights.weight > 0.0]}
     if present <= kinds:
         return scene.arrays
@@ -65,7 +66,7 @@ def _path(name: str, mode: int, indirect: bool, heat_map: bool = False) -> Integ
     def arguments(scene: CompiledScene, run: PixelRun) -> tuple:
         settings = run.settings
         max_depth = settings.max_depth
-        if mode == path.PATH and not (indirect and run.flags & effects.INDIRECT):
+        if mode == path.PATH and not (indirect and run.flags & INDIRECT):
             max_depth = min(max_depth, 2)
         return (
             arrays_for_plan(scene, run.flags),
@@ -107,7 +108,7 @@ def _surface(name: str, output: int) -> Integrator:
             output,
             settings.ao_samples,
             settings.ao_distance * scene_diagonal(scene),
-            bool(run.flags & effects.TEXTURES),
+            bool(run.flags & TEXTURES),
         )
 
     def kernel(flags: int) -> Callable[..., None]:
