@@ -76,6 +76,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--repeats", type=int, default=9, help="timed rounds")
     parser.add_argument("--threads", type=int, default=usable_cores())
+    parser.add_argument(
+        "--tree-cache", help="kernel cache for this tree, kept between runs (default: a fresh one)"
+    )
+    parser.add_argument(
+        "--base-cache", help="kernel cache for the base tree, kept between runs (default: fresh)"
+    )
     return parser.parse_args(argv)
 
 
@@ -89,6 +95,8 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tree_cache, tempfile.TemporaryDirectory() as base_cache:
         worker_args = [args.scene, str(args.width), str(args.height), str(args.spp),
                        str(args.threads)]  # fmt: skip
+        tree_cache = args.tree_cache or tree_cache
+        base_cache = args.base_cache or base_cache
         workers = {"tree": TreeWorker(WORKER, worker_args, args.tree, tree_cache)}
         workers["base"] = TreeWorker(WORKER, worker_args, args.base, base_cache)
         try:

@@ -6,10 +6,11 @@ interleaved round by round after a warm-up each:
 - ``all``: every effect on (``render.effect_plan: false``): the full build of the path kernel
   (material dispatch and every light kind compiled in), every flag set;
 - ``plan``: the scene's effect plan (the default renderer): the build the plan needs
-  (``integrator.kernel_for``: without the material dispatch and the non-triangle lights when
-  the plan has neither) with the plan's runtime flags;
+  (``tracer.integrators.path.kernel_for``: without the material dispatch and the non-triangle
+  lights when the plan has neither) with the plan's runtime flags;
 - ``specialised``: the plan, with the full build compiled for that one plan
-  (``numba.literally``: every flag a constant, LLVM removes the branches they switch off).
+  (``numba.literally``: every flag a constant, LLVM removes the branches they switch off;
+  ``specialised_kernel`` here, run by ``render_specialised`` through the renderer's pixel loop).
 
 Reported per scene: the effects the plan skips, median and best seconds, the speed-up of the
 plan over all effects (ratio of the medians, and the median of the per-round ratios) and of
@@ -20,6 +21,7 @@ specialised kernel is compiled (and cached) once per distinct plan.
 """
 
 import argparse
+import functools
 import os
 import subprocess
 import sys
@@ -82,6 +84,53 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+@functools.cache
+def specialised_kernel():
+    """The path kernel compiled for one plan and mode: ``numba.literally`` makes both constants,
+    so numba compiles (and caches) one kernel per value and LLVM removes every branch the plan
+    switches off. Kept to measure against the runtime flags (``docs/effects.md``)."""
+    from numba import literally
+
+    from tracer.integrators.path import KERNELS
+    from tracer.kernel.jit import jit
+
+    full = KERNELS[(True, True)]
+
+    def trace_pixels_specialised(scene, camera, width, height, p0, p1, sample_start, spp,
+                                 max_depth, rr_depth, seed, frame, shadow_t_max, mode, plan,
+                                 first, stride, stack_node, stack_t, out_rgb, out_cost,
+                                 out_rays):  # fmt: skip
+        literally(mode)
+        literally(plan)
+        full(scene, camera, width, height, p0, p1, sample_start, spp, max_depth, rr_depth, seed,
+             frame, shadow_t_max, mode, plan, first, stride, stack_node, stack_t, out_rgb,
+             out_cost, out_rays)  # fmt: skip
+
+    return jit(trace_pixels_specialised)
+
+
+def render_specialised(scene, camera, settings, plan, threads):
+    """``tracer.render.render_image`` (same line chunks, same pixel loop) with the specialised
+    kernel; returns ``(rgb (H, W, 3), cost (H,))``."""
+    from tracer.integrators.pixels import pixel_run, trace_run
+    from tracer.integrators.registry import REGISTRY
+    from tracer.render import chunk_lines
+
+    integrator = REGISTRY[settings.integrator]
+    kernel = specialised_kernel()
+    width, height = camera.width, camera.height
+    image = np.empty((height, width, 3), np.float32)
+    cost = np.empty(height, np.int64)
+    chunk = chunk_lines(camera, settings)
+    for y0 in range(0, height, chunk):
+        y1 = min(height, y0 + chunk)
+        run = pixel_run(scene, camera, settings, y0 * width, y1 * width, 0, 0, plan.flags)
+        rgb, pixel_cost, _ = trace_run(kernel, integrator.arguments(scene, run), run, threads)
+        image[y0:y1] = rgb.reshape(y1 - y0, width, 3)
+        cost[y0:y1] = pixel_cost.reshape(y1 - y0, width).sum(axis=1)
+    return image, cost
+
+
 def spot_lit_studio():
     """The studio scene lit by three spot lights instead of its area lights: nothing a ray can
     hit emits, so the plan drops the last vertex's continuation ray (the one rule that saves
@@ -117,7 +166,8 @@ def scene_states(args: argparse.Namespace):
 
 def measure_scenes(args: argparse.Namespace) -> dict:
     from tracer.compiled.scene import compile_scene
-    from tracer.integrators.effects import ALL, EFFECTS, EffectPlan, effect_plan
+    from tracer.integrators.effects import EffectPlan, effect_plan
+    from tracer.integrators.flags import ALL, EFFECTS
     from tracer.render import render_image
     from tracer.scene.format import override
 
@@ -132,13 +182,14 @@ def measure_scenes(args: argparse.Namespace) -> dict:
         everything = EffectPlan(ALL, {})
         images = {}
 
+        def render_image_with(scene_, camera_, settings_, plan_, threads):
+            return render_image(scene_, camera_, settings_, threads=threads, plan=plan_)
+
         def run(which, plan_, specialised, job=(scene, camera, settings, images)):
             def go(_round):
                 scene_, camera_, settings_, images_ = job
-                image, cost = render_image(
-                    scene_, camera_, settings_, threads=args.threads, plan=plan_,
-                    specialised=specialised,
-                )  # fmt: skip
+                render = render_specialised if specialised else render_image_with
+                image, cost = render(scene_, camera_, settings_, plan_, args.threads)
                 images_[which] = (image, int(cost.sum()))
 
             return go
@@ -225,15 +276,21 @@ def report_scenes(scenes: dict, specialised: bool) -> None:
 COLD_SCRIPT = """
 import sys, time
 start = time.perf_counter()
+sys.path.insert(0, "bench")
+from effects import render_specialised
 from tracer.compiled.scene import compile_scene
+from tracer.integrators.effects import effect_plan
 from tracer.scene.loader import load_scene
-from tracer.render import render_lines
+from tracer.render import render_image
 from tracer.scene.format import override
 scene = compile_scene(load_scene(sys.argv[1]))
 loaded = time.perf_counter()
 tiny = override(scene.camera, width=1, height=1)
-render_lines(scene, 0, 1, tiny, override(scene.render, spp=1), threads=1,
-             specialised=sys.argv[2] == "1")
+settings = override(scene.render, spp=1)
+if sys.argv[2] == "1":
+    render_specialised(scene, tiny, settings, effect_plan(scene, settings), 1)
+else:
+    render_image(scene, tiny, settings, threads=1)
 print(loaded - start, time.perf_counter() - loaded)
 """
 

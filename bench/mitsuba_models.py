@@ -114,7 +114,7 @@ def conductor_rows(mi, rng, samples: int) -> list[dict]:
 def plastic_rows(mi, rng, samples: int) -> list[dict]:
     """Albedo of our plastic (its base; the whole BSDF when rough) and Mitsuba's / ours, per
     roughness and view angle."""
-    from tracer.crosscheck.mitsuba_export import rough_plastic_base_scale
+    from tracer.crosscheck.mitsuba_conversions import rough_plastic_base_scale
     from tracer.scene import format as fmt
     from tracer.shading import bsdf as ours
     from tracer.shading.materials import PLASTIC_MIN_ALPHA, material_row

@@ -45,11 +45,6 @@ COST_HEATMAP_MAX = 65536
 """Work per sample (node visits plus triangle tests) shown as the hottest colour of the cost
 heat map (tracer.io.heatmap); the scale is logarithmic from 0."""
 
-# --- Kernels ---------------------------------------------------------------------------------
-SPECIALISED_KERNELS = False
-"""Run the path kernel compiled for each effect plan (True) or the one with runtime flags
-(False). Measured in docs/effects.md (bench/effects.py)."""
-
 # --- Textures --------------------------------------------------------------------------------
 MAX_TEXTURE_SIDE = 16384
 MAX_TEXTURE_PIXELS = 16 * 1024 * 1024

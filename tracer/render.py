@@ -1,10 +1,7 @@
 """Public entry points: render a pixel run or a line range, or a whole image with progress.
 
-``render.integrator`` picks the kernel: ``path``, ``direct`` (a path of two vertices),
-``whitted`` and ``cost`` (the path kernel's work as a heat map, ``tracer.io.heatmap``) run
-``tracer.integrators.path`` under the effect plan (``tracer.integrators.effects``); ``ao``,
-``albedo``,
-``normal`` and ``depth`` run ``tracer.integrators.surface``.
+``render.integrator`` picks the kernel through the registry (``tracer.integrators.registry``),
+under the effect plan (``tracer.integrators.effects``).
 
 ``render_pixels`` renders any run [p0, p1) of a frame's pixels in row-major order, and
 ``render_lines`` the line-aligned run [y0 * W, y1 * W): what a tracer runs for its share of a
@@ -19,19 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracer import config
-from tracer.compiled.arrays import SceneArrays
 from tracer.compiled.scene import CompiledScene
-from tracer.integrators import effects
 from tracer.integrators.effects import EffectPlan, effect_plan
-from tracer.integrators.path import PATH, WHITTED, kernel_for, render_pixels_specialised
-from tracer.integrators.surface import OUTPUTS, render_surface
+from tracer.integrators.pixels import pixel_run, trace_run
+from tracer.integrators.registry import REGISTRY
 from tracer.io.heatmap import cost_heatmap
-from tracer.kernel.threads import run_parts
-from tracer.maths import portable
 from tracer.scene import format as fmt
-from tracer.shading.camera import camera_array
-from tracer.shading.lights import light_arrays, scene_fields
 
 SAMPLES_PER_CALL = 1 << 18
 """Samples per kernel call in ``render_image``: enough that the threads' shares even out
@@ -68,17 +58,6 @@ class RenderedPixels:
     seconds: float
 
 
-def arrays_for_plan(scene: CompiledScene, plan: EffectPlan) -> SceneArrays:
-    """The scene's arrays with only the lights the plan keeps (the same arrays when it keeps
-    every light the scene has)."""
-    kinds = plan.light_kinds()
-    present = {int(k) for k in scene.lights.kind[scene.lights.weight > 0.0]}
-    if present <= kinds:
-        return scene.arrays
-    light = light_arrays(scene.lights, kinds)
-    return scene.arrays._replace(**scene_fields(light))
-
-
 def render_lines(
     scene: CompiledScene,
     y0: int,
@@ -89,25 +68,21 @@ def render_lines(
     sample_start: int = 0,
     threads: int | None = None,
     plan: EffectPlan | None = None,
-    specialised: bool | None = None,
 ) -> RenderedLines:
     """Render lines [y0, y1) of a frame: the pixel run [y0 * W, y1 * W) (:func:`render_pixels`).
 
     Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
     sample ranges give independent estimates that average to the larger render. ``threads``
     defaults to every CPU this process may use. ``plan`` is the effect plan (default: the one
-    ``tracer.integrators.effects.effect_plan`` makes of the scene and settings); ``specialised``
-    runs a kernel compiled for that plan instead of the one with runtime flags (default:
-    ``config.SPECIALISED_KERNELS``).
+    ``tracer.integrators.effects.effect_plan`` makes of the scene and settings).
     """
     camera = camera or scene.camera
     if not 0 <= y0 < y1 <= camera.height:
         raise ValueError(f"line range [{y0}, {y1}) is not inside [0, {camera.height})")
     width = camera.width
     run = render_pixels(
-        scene, y0 * width, y1 * width, camera, settings, frame, sample_start, threads, plan,
-        specialised,
-    )  # fmt: skip
+        scene, y0 * width, y1 * width, camera, settings, frame, sample_start, threads, plan
+    )
     lines = y1 - y0
     return RenderedLines(
         y0,
@@ -130,7 +105,6 @@ def render_pixels(
     sample_start: int = 0,
     threads: int | None = None,
     plan: EffectPlan | None = None,
-    specialised: bool | None = None,
 ) -> RenderedPixels:
     """Render the pixel run [p0, p1) of a frame (row-major pixel indices ``y * W + x``; a run
     may start and end anywhere in a line). Every pixel gets the bits it gets in any other split
@@ -150,94 +124,20 @@ def render_pixels(
         raise ValueError("frame and sample_start must be non-negative")
     if plan is None:
         plan = effect_plan(scene, settings)
-    cam = camera_array(
-        np.asarray(camera.position) - scene.origin,
-        np.asarray(camera.look_at) - scene.origin,
-        camera.up,
-        camera.vfov_deg,
-        width,
-        height,
-        camera.aperture_radius,
-        camera.focus_distance,
-    )
-    # The kernels write rows of the lines the run touches; the run is a slice of them.
-    y_first = p0 // width
-    rows = (p1 - 1) // width + 1 - y_first
-    rgb = np.empty((rows, width, 3), np.float32)
-    cost = np.empty((rows, width), np.int64)
-    rays = np.empty((rows, width), np.int64)
+    integrator = REGISTRY[settings.integrator]
     start = time.perf_counter()
-    if settings.integrator in OUTPUTS:
-        surface_args = (
-            scene.arrays,
-            cam,
-            width,
-            height,
-            p0,
-            p1,
-            sample_start,
-            settings.spp,
-            settings.seed,
-            frame,
-            OUTPUTS[settings.integrator],
-            settings.ao_samples,
-            settings.ao_distance * scene_diagonal(scene),
-            bool(plan.flags & effects.TEXTURES),
-        )
-
-        def work(part: int, parts: int) -> None:
-            stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
-            stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
-            render_surface(*surface_args, part, parts, stack_node, stack_t, rgb, cost, rays)
-
-    else:
-        max_depth = settings.max_depth
-        path = settings.integrator in ("path", "cost")
-        if settings.integrator == "direct" or (path and not plan.flags & effects.INDIRECT):
-            max_depth = min(max_depth, 2)
-        mode = WHITTED if settings.integrator == "whitted" else PATH
-        args = (
-            arrays_for_plan(scene, plan),
-            cam,
-            width,
-            height,
-            p0,
-            p1,
-            sample_start,
-            settings.spp,
-            max_depth,
-            settings.rr_depth,
-            settings.seed,
-            frame,
-            1.0 - config.SHADOW_EPSILON,
-            mode,
-            plan.flags,
-        )
-        if specialised is None:
-            specialised = config.SPECIALISED_KERNELS
-        kernel = render_pixels_specialised if specialised else kernel_for(plan.flags)
-
-        def work(part: int, parts: int) -> None:
-            stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
-            stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
-            kernel(*args, part, parts, stack_node, stack_t, rgb, cost, rays)
-
-    run_parts(work, threads)
-    run = slice(p0 - y_first * width, p1 - y_first * width)
-    pixel_cost = cost.reshape(-1)[run]
-    if settings.integrator == "cost":
-        pixel_rgb = cost_heatmap(pixel_cost, settings.spp)
-    else:
-        pixel_rgb = rgb.reshape(-1, 3)[run]
+    run = pixel_run(scene, camera, settings, p0, p1, frame, sample_start, plan.flags)
+    kernel = integrator.kernel(plan.flags)
+    rgb, cost, rays = trace_run(kernel, integrator.arguments(scene, run), run, threads)
+    if integrator.heat_map:
+        rgb = cost_heatmap(cost, settings.spp)
     seconds = time.perf_counter() - start
-    return RenderedPixels(
-        p0, p1, pixel_rgb, pixel_cost, rays.reshape(-1)[run], settings.spp, seconds
-    )
+    return RenderedPixels(p0, p1, rgb, cost, rays, settings.spp, seconds)
 
 
-def scene_diagonal(scene: CompiledScene) -> float:
-    """Length of the diagonal of the scene's bounding box (world units)."""
-    return portable.norm(np.subtract(scene.stats.bounds_max, scene.stats.bounds_min))
+def chunk_lines(camera: fmt.Camera, settings: fmt.RenderSettings) -> int:
+    """Lines ``render_image`` renders per kernel call: about ``SAMPLES_PER_CALL`` samples."""
+    return max(1, min(camera.height, SAMPLES_PER_CALL // max(1, camera.width * settings.spp)))
 
 
 def render_image(
@@ -250,28 +150,22 @@ def render_image(
     threads: int | None = None,
     on_lines: Callable[[RenderedLines], None] | None = None,
     plan: EffectPlan | None = None,
-    specialised: bool | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Render a whole frame; returns ``(rgb float32 (H, W, 3), cost int64 (H,))``.
 
-    ``on_lines`` is called after each chunk (for progress bars); ``plan`` and ``specialised``
-    as for :func:`render_lines`.
+    ``on_lines`` is called after each chunk (for progress bars); ``plan`` as for
+    :func:`render_lines`; ``lines_per_call`` defaults to :func:`chunk_lines`.
     """
     camera = camera or scene.camera
     settings = settings or scene.render
-    if lines_per_call is None:
-        lines_per_call = max(
-            1, min(camera.height, SAMPLES_PER_CALL // max(1, camera.width * settings.spp))
-        )
+    chunk = chunk_lines(camera, settings) if lines_per_call is None else lines_per_call
     image = np.empty((camera.height, camera.width, 3), np.float32)
     cost = np.empty(camera.height, np.int64)
     if plan is None:
         plan = effect_plan(scene, settings)
-    for y0 in range(0, camera.height, lines_per_call):
-        y1 = min(camera.height, y0 + lines_per_call)
-        part = render_lines(
-            scene, y0, y1, camera, settings, frame, sample_start, threads, plan, specialised
-        )
+    for y0 in range(0, camera.height, chunk):
+        y1 = min(camera.height, y0 + chunk)
+        part = render_lines(scene, y0, y1, camera, settings, frame, sample_start, threads, plan)
         image[y0:y1] = part.rgb
         cost[y0:y1] = part.cost
         if on_lines is not None:

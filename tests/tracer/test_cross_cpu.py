@@ -316,7 +316,7 @@ def reference(scenes) -> Run:
 def test_scenes_use_every_effect(scenes):
     """The harsh scene runs every effect of the path tracer; outdoor all but textures."""
     from tracer.compiled.scene import compile_scene
-    from tracer.integrators import effects
+    from tracer.integrators.flags import ALL, TEXTURES
     from tracer.render import effect_plan
     from tracer.scene.loader import load_scene
 
@@ -324,8 +324,8 @@ def test_scenes_use_every_effect(scenes):
     for name, path in scenes.items():
         scene = compile_scene(load_scene(path))
         plans[name] = effect_plan(scene, scene.render).flags
-    assert plans["harsh"] == effects.ALL
-    assert plans["outdoor"] == effects.ALL & ~effects.TEXTURES
+    assert plans["harsh"] == ALL
+    assert plans["outdoor"] == ALL & ~TEXTURES
 
 
 def test_reference_is_a_real_image(reference):

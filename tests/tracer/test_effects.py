@@ -10,8 +10,8 @@ from cli.commands import REPO_SCENES, sample_scene_files
 from tests.helpers import compile_dict, tiny_scene
 from tests.stats import pass_statistics, welch_pixel_test
 from tracer.compiled.scene import compile_scene
-from tracer.integrators import effects
-from tracer.integrators.effects import ALL, EffectPlan, effect_plan, needed_effects
+from tracer.integrators.effects import EffectPlan, effect_plan, needed_effects
+from tracer.integrators.flags import ALL, EFFECTS, MATERIAL_EFFECTS, SUN
 from tracer.render import render_image
 from tracer.scene.format import override
 from tracer.scene.loader import load_scene
@@ -101,7 +101,7 @@ def test_user_switches():
     assert not {"shadows", "indirect"} & names(plan)
     assert plan.reasons["shadows"] == "switched off in render.effects"
     every = effect_plan(scene, override(scene.render, effect_plan=False))
-    assert names(every) == set(effects.EFFECTS) - {"shadows", "indirect"}
+    assert names(every) == set(EFFECTS) - {"shadows", "indirect"}
     with pytest.raises(ValueError, match="only be switched off"):
         override(scene.render, effects={"sky": True})
     with pytest.raises(ValueError):
@@ -251,9 +251,9 @@ def test_a_needed_effect_is_kept_and_shows(name, effect, materials):
     settings = override(scene.render, spp=8)
     plan = effect_plan(scene, settings)
     assert effect in names(plan)
-    dropped = plan.flags & ~effects.EFFECTS[effect]
+    dropped = plan.flags & ~EFFECTS[effect]
     if effect in ("specular", "glossy"):
-        dropped &= ~effects.MATERIAL_EFFECTS
+        dropped &= ~MATERIAL_EFFECTS
     if materials is None:
         mask = np.ones((camera.height, camera.width), bool)
     else:
@@ -272,5 +272,5 @@ def test_an_unneeded_effect_changes_nothing():
     plan = effect_plan(scene, settings)
     assert "sun" not in names(plan)
     a = render_image(scene, camera, settings, plan=EffectPlan(ALL, {}))[0]
-    b = render_image(scene, camera, settings, plan=EffectPlan(ALL & ~effects.SUN, {}))[0]
+    b = render_image(scene, camera, settings, plan=EffectPlan(ALL & ~SUN, {}))[0]
     assert a.tobytes() == b.tobytes()

@@ -18,8 +18,8 @@ from tests.chi2 import chi2_test, integrate_pdf, level
 from tests.helpers import compile_dict, mean_and_error, render_passes, tiny_scene
 from tests.tracer.test_integrators import agree, passes_with_plan
 from tracer.errors import SceneError
-from tracer.integrators import effects
 from tracer.integrators.effects import EffectPlan, effect_plan, needed_effects
+from tracer.integrators.flags import LIGHT_SAMPLES, SHADOWS
 from tracer.scene import format as fmt
 from tracer.scene.checks import check_state
 from tracer.scene.codec import decode_state, encode_state
@@ -320,7 +320,7 @@ def test_nee_bsdf_and_mis_agree_under_a_peaky_map(tmp_path, material):
     # horizon (the back of the ball), so they take more samples per pass.
     nee = render_passes(scene, 12, 256, integrator="whitted", seed=5)
     plan = effect_plan(scene, settings)
-    bsdf_only = EffectPlan(plan.flags & ~(effects.LIGHT_SAMPLES | effects.SHADOWS), {})
+    bsdf_only = EffectPlan(plan.flags & ~(LIGHT_SAMPLES | SHADOWS), {})
     bsdf = passes_with_plan(scene, scene.camera, override(settings, seed=6), bsdf_only, 12, 1024)
     agree(mis, nee)
     agree(mis, bsdf)

@@ -13,10 +13,16 @@ import pytest
 from tests.helpers import CORNELL, compile_dict, mean_and_error, render_passes, two_planes
 from tests.stats import pass_statistics, welch_pixel_test
 from tracer.compiled.scene import compile_scene
-from tracer.integrators import effects
 from tracer.integrators import path as integrator
 from tracer.integrators import surface as surface_integrators
 from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.flags import (
+    LIGHT_SAMPLES,
+    MATERIAL_BUILD,
+    MATERIAL_EFFECTS,
+    NO_MIS,
+    SHADOWS,
+)
 from tracer.io.heatmap import cost_heatmap
 from tracer.render import render_image
 from tracer.scene.format import override
@@ -76,20 +82,20 @@ def test_nee_bsdf_and_mis_agree(cornell):
     mis = render_passes(scene, 12, 8, camera, max_depth=2)
     nee = render_passes(scene, 12, 8, camera, integrator="whitted", seed=1)
     plan = effect_plan(scene, settings)
-    bsdf_only = EffectPlan(plan.flags & ~(effects.LIGHT_SAMPLES | effects.SHADOWS), {})
+    bsdf_only = EffectPlan(plan.flags & ~(LIGHT_SAMPLES | SHADOWS), {})
     bsdf = passes_with_plan(scene, camera, settings, bsdf_only, 12, 256)
     agree(mis, nee)
     agree(mis, bsdf)
 
 
 def test_path_without_mis_agrees_with_mis(cornell):
-    """The path tracer with light samples and no MIS (``effects.NO_MIS``: emitters that
+    """The path tracer with light samples and no MIS (``NO_MIS``: emitters that
     BSDF-sampled rays hit count only after delta bounces and for camera rays) estimates the
     same image as with MIS, at every depth; it is a different estimator (the images differ)."""
     scene, camera = cornell
     settings = override(scene.render, seed=3)
     plan = effect_plan(scene, settings)
-    no_mis = EffectPlan(plan.flags | effects.NO_MIS, {})
+    no_mis = EffectPlan(plan.flags | NO_MIS, {})
     mis = render_passes(scene, 12, 8, camera)
     nee = passes_with_plan(scene, camera, settings, no_mis, 12, 8)
     agree(mis, nee)
@@ -103,20 +109,20 @@ def test_path_without_mis_under_a_sky():
     scene = furnace({"reflectance": [1, 1, 1]}, "path")
     settings = override(scene.render, spp=8)
     plan = effect_plan(scene, settings)
-    for flags in (plan.flags, plan.flags | effects.NO_MIS):
+    for flags in (plan.flags, plan.flags | NO_MIS):
         passes = passes_with_plan(scene, scene.camera, settings, EffectPlan(flags, {}), 8, 8)
         mean, se = mean_and_error(passes)
         assert np.all(np.abs(mean - 1.0) < 4 * se + 1e-6), (flags, mean, se)
 
 
 def test_material_build_switch_changes_only_the_build(cornell):
-    """``effects.MATERIAL_BUILD`` runs a Lambertian plan in the kernel build with the material
+    """``MATERIAL_BUILD`` runs a Lambertian plan in the kernel build with the material
     dispatch: another kernel, the same pixels bit for bit."""
     scene, camera = cornell
     settings = override(scene.render, spp=2)
     plan = effect_plan(scene, settings)
-    assert not plan.flags & effects.MATERIAL_EFFECTS
-    switched = EffectPlan(plan.flags | effects.MATERIAL_BUILD, {})
+    assert not plan.flags & MATERIAL_EFFECTS
+    switched = EffectPlan(plan.flags | MATERIAL_BUILD, {})
     assert integrator.kernel_for(switched.flags) is not integrator.kernel_for(plan.flags)
     light = render_image(scene, camera, settings, plan=plan)[0]
     general = render_image(scene, camera, settings, plan=switched)[0]
@@ -128,7 +134,7 @@ def test_a_missing_strategy_is_caught(cornell):
     and the emission of hit lights only seen directly) loses the direct light and is rejected."""
     scene, camera = cornell
     mis = render_passes(scene, 6, 8, camera, max_depth=2, seed=1)
-    plan = EffectPlan(effect_plan(scene, scene.render).flags & ~effects.LIGHT_SAMPLES, {})
+    plan = EffectPlan(effect_plan(scene, scene.render).flags & ~LIGHT_SAMPLES, {})
     broken = passes_with_plan(scene, camera, override(scene.render, max_depth=1), plan, 6, 8)
     with pytest.raises(AssertionError):
         agree(mis, broken)

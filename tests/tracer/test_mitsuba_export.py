@@ -14,8 +14,10 @@ import pytest
 import trimesh
 from PIL import Image
 
+from tracer.crosscheck import mitsuba_conversions as conversions
 from tracer.crosscheck import mitsuba_export as mx
-from tracer.crosscheck.mitsuba_export import UnsupportedFeature, export_scene
+from tracer.crosscheck.mitsuba_base import UnsupportedFeature
+from tracer.crosscheck.mitsuba_export import export_scene
 from tracer.io.images import read_image, write_image
 from tracer.scene import format as fmt
 from tracer.scene.loader import SceneData, load_scene
@@ -209,7 +211,7 @@ def test_rough_plastic_is_roughplastic_with_its_base_scaled_and_a_model_differen
     assert value(inner, "string", "distribution") == "ggx"
     assert float(value(inner, "float", "alpha")) == pytest.approx(0.09)
     assert value(inner, "boolean", "nonlinear") == "false"
-    scale = mx.rough_plastic_base_scale(0.09, 1.5)
+    scale = conversions.rough_plastic_base_scale(0.09, 1.5)
     np.testing.assert_allclose(
         numbers(value(inner, "rgb", "diffuse_reflectance")), np.array([0.1, 0.45, 0.45]) * scale
     )
@@ -243,9 +245,9 @@ def test_base_scale_of_a_nearly_smooth_coat_is_mitsubas_sum_against_the_integral
         2.0 * integrate.quad(lambda m: smooth_internal_fresnel(m, ior) * m, lo, hi)[0]
         for lo, hi in ((0.0, critical), (critical, 1.0))
     )
-    assert mx.mitsuba_internal_reflectance(alpha, ior) == pytest.approx(summed, abs=5e-5)
+    assert conversions.mitsuba_internal_reflectance(alpha, ior) == pytest.approx(summed, abs=5e-5)
     expected = (1.0 - summed) / (1.0 - integral)
-    assert mx.rough_plastic_base_scale(alpha, ior) == pytest.approx(expected, abs=2e-4)
+    assert conversions.rough_plastic_base_scale(alpha, ior) == pytest.approx(expected, abs=2e-4)
     assert 1.015 < expected < 1.025
 
 
@@ -260,14 +262,14 @@ def test_base_scale_at_roughness_03_uses_the_separable_masking():
     mu = np.maximum(1e-6, np.linspace(0.0, 1.0, 64))
     ours = np.array([ggx_dielectric_albedo(m, alpha, 1.0 / ior, nodes, weights)[0] for m in mu])
     theirs = np.array(
-        [mx.separable_coat_reflectance(m, alpha, 1.0 / ior, nodes, weights) for m in mu]
+        [conversions.separable_coat_reflectance(m, alpha, 1.0 / ior, nodes, weights) for m in mu]
     )
     assert np.all(theirs <= ours + 1e-12) and np.any(theirs < ours - 1e-4)
-    fdr = mx.mitsuba_internal_reflectance(alpha, ior)
+    fdr = conversions.mitsuba_internal_reflectance(alpha, ior)
     assert fdr == pytest.approx(2.0 * np.mean(theirs * mu), rel=1e-12)
     assert fdr < 2.0 * np.mean(ours * mu) - 1e-4
     expected = (1.0 - fdr) / (1.0 - coat_tables(alpha, ior)[1])
-    assert mx.rough_plastic_base_scale(alpha, ior) == pytest.approx(expected, rel=1e-12)
+    assert conversions.rough_plastic_base_scale(alpha, ior) == pytest.approx(expected, rel=1e-12)
     assert 1.015 < expected < 1.025
 
 
@@ -282,7 +284,7 @@ def test_textured_rough_plastic_base_gets_the_same_scale(tmp_path):
     _, inner = bsdf(root)
     assert inner.get("type") == "roughplastic"
     _, image = bitmap_of(tmp_path / "out", inner)
-    scale = mx.rough_plastic_base_scale(0.25**2, 1.5)
+    scale = conversions.rough_plastic_base_scale(0.25**2, 1.5)
     expected = srgb_to_linear(np.uint8(128)) * np.float32([0.2, 0.4, 0.6]) * scale
     np.testing.assert_allclose(image[0, 0], expected, rtol=1e-6)
 
@@ -322,7 +324,7 @@ def test_mitsubas_exported_rough_plastic_base_is_ours(tmp_path):
     wo, wi = (0.3, 0.0, math.sqrt(0.91)), (0.0, 0.2, math.sqrt(0.96))
     q = base(nonlinear, wo, wi)[0] / base(linear, wo, wi)[0]  # (1 - F) / (1 - F / 2)
     assert (1.0 - q) / (1.0 - 0.5 * q) == pytest.approx(
-        mx.mitsuba_internal_reflectance(0.09, 1.5), abs=2e-4
+        conversions.mitsuba_internal_reflectance(0.09, 1.5), abs=2e-4
     )
 
     _, albedo, _, _, row = material_row(plastic)
@@ -419,7 +421,7 @@ def test_soft_spot_carries_our_falloff_in_a_projection_bitmap(tmp_path):
     result, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, lights=[spot(10.0)]))
     texture = root.find("emitter[@type='spot']/texture")
     image = read_image(tmp_path / value(texture, "string", "filename"))
-    n = mx.SPOT_TEXTURE_SIZE
+    n = conversions.SPOT_TEXTURE_SIZE
     assert image.shape == (n, n, 3)
     # Texel (i, j) centre looks along ((2u - 1) tan 30, (2v - 1) tan 30, 1).
     i, j = 3 * n // 8, n // 2
@@ -481,8 +483,8 @@ def test_gradient_sky_is_an_envmap_with_rows_at_mitsubas_polar_angles(tmp_path):
     result, root = export(tmp_path, state_of({"a": fmt.DiffuseMaterial()}, sky=sky))
     emitter = root.find("emitter[@type='envmap']")
     image = read_image(tmp_path / value(emitter, "string", "filename"))
-    rows = mx.SKY_ROWS
-    assert image.shape == (rows, mx.SKY_COLUMNS, 3)
+    rows = conversions.SKY_ROWS
+    assert image.shape == (rows, conversions.SKY_COLUMNS, 3)
     np.testing.assert_allclose(image[0, 0], [0.2, 0.3, 0.8])  # straight up
     np.testing.assert_allclose(image[-1, 0], [0.3, 0.2, 0.1])  # straight down
     i = rows // 3
@@ -660,10 +662,10 @@ def test_textured_meshes_carry_scaled_uvs_with_v_from_the_top(tmp_path):
 def test_environment_map_is_upsampled_keeping_its_pixels_and_integral(tmp_path):
     state = load_scene(textured_scene(tmp_path))
     sky = state.sky
-    bitmap, k = mx.environment_bitmap(sky)
+    bitmap, k = conversions.environment_bitmap(sky)
     h, w = sky.image.shape[:2]
     scaled = (sky.image.astype(np.float64) * 1.5).astype(np.float32)
-    assert k == mx.ENVIRONMENT_MAX_FACTOR and bitmap.shape == (k * h + 1, k * w, 3)
+    assert k == conversions.ENVIRONMENT_MAX_FACTOR and bitmap.shape == (k * h + 1, k * w, 3)
     # Away from the edges, texel (i', j') holds the pixel it lies in; an edge row the mean.
     np.testing.assert_array_equal(bitmap[1:k, :k], np.broadcast_to(scaled[0, 0], (k - 1, k, 3)))
     np.testing.assert_array_equal(bitmap[0, ::k], scaled[0])
@@ -684,7 +686,7 @@ def test_environment_to_world_turns_our_centre_to_mitsubas(tmp_path):
     """Mitsuba looks up ``u = atan2(x, -z) / 2 pi`` of the local direction (its image centre
     along +z); ours has the centre along -z, turned by ``rotation`` about +y."""
     for rotation in (0.0, 30.0, -120.0):
-        matrix = mx.environment_to_world(rotation)[:3, :3]
+        matrix = conversions.environment_to_world(rotation)[:3, :3]
         r = math.radians(rotation)
         # Our image centre looks along -z turned counter-clockwise (seen from above) by r.
         centre = np.array([-math.sin(r), 0.0, -math.cos(r)])
@@ -755,11 +757,13 @@ def test_mitsuba_sees_our_environment_orientation_and_texture_uvs(tmp_path):
 
 def test_winding_numbers_tell_inside_from_outside():
     vertices, faces = sphere(1.0, 2)
-    w = mx.winding_numbers(np.array([[0, 0, 0], [0.5, 0.2, 0], [2, 0, 0]]), vertices, faces)
+    w = conversions.winding_numbers(
+        np.array([[0, 0, 0], [0.5, 0.2, 0], [2, 0, 0]]), vertices, faces
+    )
     np.testing.assert_allclose(w, [1, 1, 0], atol=1e-9)
-    assert mx.is_closed_outward(*box((1, 2, 3)))
-    assert not mx.is_closed_outward(vertices, faces[:, ::-1])
-    assert not mx.is_closed_outward(*rectangle(1, 1))
+    assert conversions.is_closed_outward(*box((1, 2, 3)))
+    assert not conversions.is_closed_outward(vertices, faces[:, ::-1])
+    assert not conversions.is_closed_outward(*rectangle(1, 1))
 
 
 def test_the_export_does_not_import_mitsuba():

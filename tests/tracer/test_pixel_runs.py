@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.helpers import compile_dict
-from tracer.integrators import effects
 from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.flags import MATERIAL_EFFECTS, NO_MIS, SUN
 from tracer.render import render_image, render_lines, render_pixels
 from tracer.scene.format import override
 
@@ -66,9 +66,9 @@ def view(request, cornell):
     settings_ = override(scene.render, spp=SPP, integrator=integrator)
     plan = effect_plan(scene, settings_)
     if variant == "path-no-mis":
-        plan = EffectPlan(plan.flags | effects.NO_MIS, {})
+        plan = EffectPlan(plan.flags | NO_MIS, {})
     if variant == "materials":
-        assert plan.flags & effects.MATERIAL_EFFECTS and plan.flags & effects.SUN
+        assert plan.flags & MATERIAL_EFFECTS and plan.flags & SUN
     rgb, line_cost = render_image(scene, camera, settings_, plan=plan, threads=1)
     lines = [render_lines(scene, y, y + 1, camera, settings_, plan=plan) for y in range(HEIGHT)]
     line_rays = np.concatenate([line.rays for line in lines])

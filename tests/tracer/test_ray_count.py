@@ -12,8 +12,8 @@ import pytest
 
 from tests.helpers import CORNELL, compile_dict, two_planes
 from tracer.compiled.scene import compile_scene
-from tracer.integrators import effects
 from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.flags import EMITTER_HITS, LIGHT_SAMPLES, NO_MIS, SHADOWS
 from tracer.render import render_image, render_lines
 from tracer.scene.format import override
 from tracer.scene.loader import load_scene
@@ -60,8 +60,8 @@ def no_roulette(scene, depth: int, **changes):
 def test_lit_box_plan(lit_box):
     """The premises of the counts below: light samples and shadows, nothing to hit that emits."""
     flags = effect_plan(lit_box, lit_box.render).flags
-    assert flags & effects.LIGHT_SAMPLES and flags & effects.SHADOWS
-    assert not flags & effects.EMITTER_HITS
+    assert flags & LIGHT_SAMPLES and flags & SHADOWS
+    assert not flags & EMITTER_HITS
 
 
 @pytest.mark.parametrize("depth", [1, 2, 3, 5, 8])
@@ -83,9 +83,9 @@ def test_shadow_rays_once_per_light_sample(lit_box, depth):
     plan = effect_plan(lit_box, settings)
     unshadowed = rays_per_sample(lit_box, override(settings, effects={"shadows": False}))
     assert np.all(unshadowed == (depth - 1))
-    bsdf_only = EffectPlan(plan.flags & ~(effects.LIGHT_SAMPLES | effects.SHADOWS), {})
+    bsdf_only = EffectPlan(plan.flags & ~(LIGHT_SAMPLES | SHADOWS), {})
     assert np.all(rays_per_sample(lit_box, settings, bsdf_only) == (depth - 1))
-    no_mis = EffectPlan(plan.flags | effects.NO_MIS, {})
+    no_mis = EffectPlan(plan.flags | NO_MIS, {})
     assert np.all(rays_per_sample(lit_box, settings, no_mis) == 2 * (depth - 1))
 
 

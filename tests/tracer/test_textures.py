@@ -17,8 +17,8 @@ from tests.helpers import SCENES, write_json
 from tracer.compiled.scene import compile_scene
 from tracer.errors import SceneError
 from tracer.geometry.scene_intersect import scene_closest
-from tracer.integrators import effects
 from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.flags import ALL, TEXTURES
 from tracer.render import render_image, render_lines
 from tracer.scene import format as fmt
 from tracer.scene.codec import decode_state, encode_state
@@ -287,8 +287,8 @@ def test_textured_plane_needs_textures_and_shows_them(tmp_path):
     plan = effect_plan(scene, scene.render)
     assert "textures" in plan.names()
     image = render_image(scene, plan=plan)[0]
-    assert image.tobytes() == render_image(scene, plan=EffectPlan(effects.ALL, {}))[0].tobytes()
-    flat = render_image(scene, plan=EffectPlan(plan.flags & ~effects.TEXTURES, {}))[0]
+    assert image.tobytes() == render_image(scene, plan=EffectPlan(ALL, {}))[0].tobytes()
+    flat = render_image(scene, plan=EffectPlan(plan.flags & ~TEXTURES, {}))[0]
     assert flat.min() > 0.0
     # Looking straight down with -z up in the picture, the plane's UVs put the image upright:
     # its top-left block (bright) at the picture's top left.

@@ -7,10 +7,10 @@ Robustness without epsilons (docs/robustness.md):
   because both evaluate the shared edge function from the same operands.
 * Hits closer than the conservative error bound of their own ``t`` are rejected (pbrt-v4's
   ``deltaT``), so a ray can never report its own origin surface at t ~ 0.
-* Boxes (four per node, ``tracer.geometry.bvh``): the slab test ignores the NaN that ``0 * inf``
-makes
-  when a ray with a zero direction component starts exactly on a slab plane (a NaN comparison
-  is false, so it never tightens the interval), and widens ``t_far`` by ``1 + 2 gamma(3)``.
+* Boxes (four per node, ``tracer.geometry.bvh``): the slab test ignores the NaN that
+  ``0 * inf`` makes when a ray with a zero direction component starts exactly on a slab plane
+  (a NaN comparison is false, so it never tightens the interval), and widens ``t_far`` by
+  ``1 + 2 gamma(3)``.
 * Hit points carry a conservative error bound; :func:`offset_ray_origin` moves a spawned ray's
   origin just past it, along the geometric normal, with a margin for its own rounding.
 

@@ -1,4 +1,5 @@
-"""The effect plan: which parts of the light transport a scene needs, as kernel flags.
+"""The effect plan: which parts of the light transport a scene needs, as kernel flags
+(``tracer.integrators.flags``).
 
 A scene compiles into the set of effects it needs (DESIGN.md, invariant 5); the kernels run only
 those. Every rule below removes work that provably adds nothing to the image, so the plan's
@@ -13,75 +14,10 @@ did not switch off, whatever the scene needs: the reference the plan is checked 
 
 from dataclasses import dataclass
 
+from tracer.integrators.flags import ALL, EFFECTS, LIGHT_SAMPLES, SHADOWS
+from tracer.integrators.registry import REGISTRY
 from tracer.scene import format as fmt
 from tracer.shading import bsdf, lights
-
-AREA_LIGHTS = 1 << 0
-"""Emissive triangles: their emission where rays hit them, and light samples on them."""
-POINT_LIGHTS = 1 << 1
-"""Point and spot lights (light samples only: rays never hit them)."""
-SUN = 1 << 2
-"""Sun lights: light samples, and the disc where rays that escape see it."""
-SKY = 1 << 3
-"""The sky (constant, gradient or an environment map): its radiance where rays escape, and light
-samples on it."""
-SHADOWS = 1 << 4
-"""Shadow rays for light samples (off: lights shine through everything)."""
-INDIRECT = 1 << 5
-"""Bounces past direct light (off: paths stop after two vertices, like ``direct``)."""
-REFRACTION = 1 << 6
-"""Transmission through dielectrics (off: they only reflect, with their Fresnel weight)."""
-ABSORPTION = 1 << 7
-"""Beer-Lambert absorption inside dielectrics."""
-SPECULAR = 1 << 8
-"""Delta lobes: mirrors, smooth conductors, dielectrics."""
-GLOSSY = 1 << 9
-"""GGX lobes: rough conductors and plastics."""
-EMITTER_HITS = 1 << 10
-"""Something a BSDF-sampled ray can hit emits (emissive triangles, the sky, a sun disc): the
-last path vertex traces its continuation ray only to find such emission."""
-LIGHT_SAMPLES = 1 << 11
-"""Next-event estimation at all."""
-TEXTURES = 1 << 12
-"""Base-colour texture lookups where rays hit textured materials."""
-
-NO_MIS = 1 << 13
-"""Not an effect, and never in a plan this module makes: a sampling switch for the accuracy
-study (``cli/accuracy.py``), set on an explicit plan. The path tracer then samples lights
-without MIS: light samples alone for direct light, and emitters that BSDF-sampled rays hit
-count only after delta bounces and for camera rays. The same image in expectation, noisier."""
-MATERIAL_BUILD = 1 << 14
-"""Not an effect either, and never in a plan this module makes: a kernel switch that runs the
-path kernel's build with the material dispatch (``integrator.kernel_for``) even where the plan
-has no material effect, so every surface is still Lambertian. The accuracy study times all of
-Reiter's stages of a scene in one build, as his renderer switched effects at run time."""
-
-EFFECTS = {
-    "area_lights": AREA_LIGHTS,
-    "point_lights": POINT_LIGHTS,
-    "sun": SUN,
-    "sky": SKY,
-    "shadows": SHADOWS,
-    "indirect": INDIRECT,
-    "refraction": REFRACTION,
-    "absorption": ABSORPTION,
-    "specular": SPECULAR,
-    "glossy": GLOSSY,
-    "emitter_hits": EMITTER_HITS,
-    "light_samples": LIGHT_SAMPLES,
-    "textures": TEXTURES,
-}
-ALL = sum(EFFECTS.values())
-MATERIAL_EFFECTS = SPECULAR | GLOSSY | REFRACTION | ABSORPTION
-"""Any of these needs the general BSDF dispatch; without them every surface is Lambertian."""
-
-LIGHT_KIND_EFFECTS = {
-    lights.TRIANGLE: AREA_LIGHTS,
-    lights.POINT: POINT_LIGHTS,
-    lights.SPOT: POINT_LIGHTS,
-    lights.SUN: SUN,
-    lights.SKY: SKY,
-}
 
 
 @dataclass(frozen=True)
@@ -95,10 +31,6 @@ class EffectPlan:
     def names(self) -> list[str]:
         """Names of the enabled effects, in ``EFFECTS`` order."""
         return [name for name, bit in EFFECTS.items() if self.flags & bit]
-
-    def light_kinds(self) -> frozenset[int]:
-        """The light kinds (``tracer.shading.lights`` constants) the plan keeps."""
-        return frozenset(k for k, bit in LIGHT_KIND_EFFECTS.items() if self.flags & bit)
 
     def to_json(self) -> dict:
         """What render metadata and ``tilerender plan`` show."""
@@ -152,7 +84,8 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
     decide("sun", lights.SUN in kinds_present, "a sun", "no sun")
     decide("sky", lights.SKY in kinds_present, "a sky that emits", "the sky is black")
     emitting = bool(kinds_present)
-    light_integrator = settings.integrator in ("path", "direct", "whitted", "cost")
+    integrator = REGISTRY[settings.integrator]
+    light_integrator = integrator.samples_lights
     decide(
         "light_samples",
         emitting and light_integrator,
@@ -207,7 +140,7 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
     )
     decide("absorption", absorbing, "an absorbing dielectric", "no absorbing dielectric")
     reflects = any(_reflects(scene, m) for m in used)
-    deep = settings.max_depth > 2 and settings.integrator in ("path", "cost")
+    deep = settings.max_depth > 2 and integrator.indirect
     decide(
         "indirect",
         deep and reflects and emitting,
@@ -221,7 +154,7 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
         else "nothing emits",
     )
     textured = any(scene.textures.material[m] >= 0 for m in used)
-    reads_colour = settings.integrator not in ("ao", "normal", "depth")
+    reads_colour = integrator.reads_colour
     decide(
         "textures",
         textured and reads_colour,

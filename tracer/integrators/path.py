@@ -10,10 +10,10 @@ never depends on the split of the frame or on threads.
 ``max_depth`` counts path vertices after the camera (Mitsuba's convention): 1 shows only
 emitters seen directly, 2 is direct lighting, 8 allows up to seven bounces.
 
-Every step is guarded by the effect plan's flags (``tracer.integrators.effects``): a step the scene
-does not need is skipped. Without material effects every surface is Lambertian and the kernel never
-reads the kind column; with them, Lambertian hits still take the direct Lambertian code and only
-other kinds go through the BSDF dispatch.
+Every step is guarded by the effect plan's flags (``tracer.integrators.flags``): a step the
+scene does not need is skipped. Without material effects every surface is Lambertian and the
+kernel never reads the kind column; with them, Lambertian hits still take the direct Lambertian
+code and only other kinds go through the BSDF dispatch.
 
 The path loop lives inside the kernel rather than in a function of its own: numba's
 inliner deep-copies an inlined function's whole body, and copying the path code (with the
@@ -23,7 +23,6 @@ traversals it contains) cost half of the kernel's compile time.
 import math
 
 import numpy as np
-from numba import literally
 
 from tracer.compiled.arrays import borrow_scene
 from tracer.geometry.scene_intersect import (
@@ -34,7 +33,7 @@ from tracer.geometry.scene_intersect import (
     spawn,
     surface,
 )
-from tracer.integrators import effects
+from tracer.integrators import flags
 from tracer.kernel.borrow import borrowed
 from tracer.kernel.jit import jit, jit_inline
 from tracer.maths.rng import pixel_key, sample_key, uniform, uniform2
@@ -77,7 +76,7 @@ if LENS_DIM != DIMS_PER_VERTEX:  # the lens takes the first vertex's last spare 
 PATH = 0
 WHITTED = 1
 """Kernel modes: ``PATH`` (NEE + MIS; ``direct`` is a path of at most two vertices; with the
-plan's ``effects.NO_MIS`` switch, NEE without MIS) and ``WHITTED`` (no MIS; a path continues
+plan's ``flags.NO_MIS`` switch, NEE without MIS) and ``WHITTED`` (no MIS; a path continues
 only through delta lobes)."""
 
 NO_PARAM = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -167,7 +166,7 @@ def path_kernel(materials: bool, lights: bool):
         (rows, W, 3) gets the mean of samples [sample_start, sample_start + spp) of each pixel,
         ``out_cost`` int64 (rows, W) the work spent on it, ``out_rays`` int64 (rows, W) the rays
         traced for it (one per traversal: camera, continuation and shadow rays). ``mode`` is
-        ``PATH`` or ``WHITTED``; ``plan`` the effect flags (``tracer.integrators.effects``).
+        ``PATH`` or ``WHITTED``; ``plan`` the effect flags (``tracer.integrators.flags``).
         Threads call this with the same stride and different ``first``: interleaved blocks of
         ``PIXEL_BLOCK`` pixels balance lines of very different cost, and keep threads off each
         other's cache lines. ``stack_node`` (int32) and ``stack_t`` (float64) are this thread's
@@ -180,11 +179,11 @@ def path_kernel(materials: bool, lights: bool):
         camera = borrowed(camera)
         stack_node = borrowed(stack_node)
         stack_t = borrowed(stack_t)
-        has_lights = s.light_cdf.shape[0] > 0 and (plan & effects.LIGHT_SAMPLES) != 0
-        mis = mode == PATH and (plan & effects.NO_MIS) == 0
+        has_lights = s.light_cdf.shape[0] > 0 and (plan & flags.LIGHT_SAMPLES) != 0
+        mis = mode == PATH and (plan & flags.NO_MIS) == 0
         nee_only = mode == PATH and not mis  # emitters that BSDF rays hit are light samples
-        general = (plan & effects.MATERIAL_EFFECTS) != 0
-        refraction = (plan & effects.REFRACTION) != 0
+        general = (plan & flags.MATERIAL_EFFECTS) != 0
+        refraction = (plan & flags.REFRACTION) != 0
         # Where ``materials`` or ``lights`` is False, the branches below that test it first are
         # removed before type inference: their callees are never compiled into this kernel.
         y_first = p0 // width  # the line of row 0 of the outputs
@@ -214,7 +213,7 @@ def path_kernel(materials: bool, lights: bool):
                         cost += c
                         rays += 1
                         if k < 0:
-                            if lights and plan & (effects.SKY | effects.SUN):
+                            if lights and plan & (flags.SKY | flags.SUN):
                                 weighted = (mode == PATH and depth > 1 and not delta_prev
                                             and has_lights)  # fmt: skip
                                 # Without MIS a zero BSDF density weighs sampled lights to 0.
@@ -234,7 +233,7 @@ def path_kernel(materials: bool, lights: bool):
                         n = ng if front else (-ng[0], -ng[1], -ng[2])
 
                         # Absorb along a segment inside a dielectric (Beer-Lambert).
-                        if materials and plan & effects.ABSORPTION and not front:
+                        if materials and plan & flags.ABSORPTION and not front:
                             if s.mat_kind[mat] == DIELECTRIC:
                                 sigma = (s.mat_param[mat, SIGMA], s.mat_param[mat, SIGMA + 1],
                                          s.mat_param[mat, SIGMA + 2])  # fmt: skip
@@ -244,7 +243,7 @@ def path_kernel(materials: bool, lights: bool):
 
                         # Add emission, MIS-weighted against light sampling after a non-delta
                         # bounce (left to light sampling alone without MIS).
-                        if plan & effects.AREA_LIGHTS:
+                        if plan & flags.AREA_LIGHTS:
                             e_mean = emission_mean(s.mat_emission, mat)
                             if e_mean > 0.0:
                                 w = 1.0
@@ -264,7 +263,7 @@ def path_kernel(materials: bool, lights: bool):
                         albedo = (np.float64(s.mat_albedo[mat, 0]),
                                   np.float64(s.mat_albedo[mat, 1]),
                                   np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
-                        if plan & effects.TEXTURES:
+                        if plan & flags.TEXTURES:
                             albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
                         wo = (-d[0], -d[1], -d[2])
                         kind = DIFFUSE
@@ -322,7 +321,7 @@ def path_kernel(materials: bool, lights: bool):
                                     )
                                     t_max = shadow_t_max
                                 blocked = False
-                                if plan & effects.SHADOWS:
+                                if plan & flags.SHADOWS:
                                     blocked, c = scene_occluded(s, s_o, s_d, t_max, stack_node)
                                     cost += c
                                     rays += 1
@@ -331,7 +330,7 @@ def path_kernel(materials: bool, lights: bool):
                                          L[2] + beta[2] * Ld[2])  # fmt: skip
                         if mode == WHITTED and not delta:
                             break  # Whitted: light at diffuse and glossy surfaces is direct only
-                        if depth + 1 >= max_depth and not plan & effects.EMITTER_HITS:
+                        if depth + 1 >= max_depth and not plan & flags.EMITTER_HITS:
                             break  # the last ray could only find emission, and nothing emits
 
                         # Sample the BSDF for the next direction and update the throughput.
@@ -382,27 +381,12 @@ def path_kernel(materials: bool, lights: bool):
 
 KERNELS = {(m, o): path_kernel(m, o) for m in (False, True) for o in (False, True)}
 """The path kernel's four builds, by (materials, lights); ``kernel_for`` picks one for a plan."""
-render_pixels_all = KERNELS[(True, True)]
 
 
 def kernel_for(plan: int):
     """The build of the path kernel that a plan needs: with the material dispatch if it has a
-    material effect (or the ``effects.MATERIAL_BUILD`` switch), with the point/spot/sun/sky
+    material effect (or the ``flags.MATERIAL_BUILD`` switch), with the point/spot/sun/sky
     code if it has one of those lights."""
-    materials = (plan & (effects.MATERIAL_EFFECTS | effects.MATERIAL_BUILD)) != 0
-    lights = (plan & (effects.POINT_LIGHTS | effects.SUN | effects.SKY)) != 0
+    materials = (plan & (flags.MATERIAL_EFFECTS | flags.MATERIAL_BUILD)) != 0
+    lights = (plan & (flags.POINT_LIGHTS | flags.SUN | flags.SKY)) != 0
     return KERNELS[(materials, lights)]
-
-
-@jit
-def render_pixels_specialised(scene, camera, width, height, p0, p1, sample_start, spp, max_depth,
-                              rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride,
-                              stack_node, stack_t, out_rgb, out_cost, out_rays):  # fmt: skip
-    """The path kernel compiled for one plan and mode: ``numba.literally`` makes both constants,
-    so numba compiles (and caches) one kernel per value and LLVM removes every branch the plan
-    switches off. Kept to measure against the runtime flags (``docs/effects.md``)."""
-    literally(mode)
-    literally(plan)
-    render_pixels_all(scene, camera, width, height, p0, p1, sample_start, spp, max_depth,
-                      rr_depth, seed, frame, shadow_t_max, mode, plan, first, stride, stack_node,
-                      stack_t, out_rgb, out_cost, out_rays)  # fmt: skip

@@ -42,7 +42,7 @@ AO = 0
 ALBEDO = 1
 NORMAL = 2
 DEPTH = 3
-OUTPUTS = {"ao": AO, "albedo": ALBEDO, "normal": NORMAL, "depth": DEPTH}
+"""The outputs of ``render_surface`` (the integrators ``ao``, ``albedo``, ``normal``, ``depth``)."""
 
 
 @jit
@@ -71,10 +71,10 @@ def render_surface(
 ):
     """Render ``output`` (``AO``, ``ALBEDO``, ``NORMAL`` or ``DEPTH``) for pixel blocks
     ``first, first + stride, ...`` of the pixel run [p0, p1); arguments and outputs as the path
-    kernel's (``integrator.path_kernel``), plus ``ao_samples`` occlusion rays per camera sample of
-    length ``ao_length`` (render-space units), and ``textures``: whether the albedo output
-    applies base-colour textures (the effect plan's ``TEXTURES``). ``out_rays`` gets the rays
-    traced per pixel: each camera ray, and each occlusion ray (``AO`` only)."""
+    kernel's (``tracer.integrators.path.path_kernel``), plus ``ao_samples`` occlusion rays per
+    camera sample of length ``ao_length`` (render-space units), and ``textures``: whether the
+    albedo output applies base-colour textures (the effect plan's ``TEXTURES``). ``out_rays``
+    gets the rays traced per pixel: each camera ray, and each occlusion ray (``AO`` only)."""
     s = borrow_scene(scene)
     camera = borrowed(camera)
     stack_node = borrowed(stack_node)

@@ -2,9 +2,9 @@
 
 A pixel's key is a hash of (seed, frame, pixel); a sample's key is SplitMix64's output number
 ``sample`` from the pixel key; draw ``dim`` of a sample is output number ``dim`` from the
-sample key. ``uniform2`` takes two 32-bit uniforms from one output. No state is carried between
-pixels, threads or line
-ranges, which is what makes any split of a frame bit-identical (DESIGN.md, invariant 1).
+sample key. ``uniform2`` takes two 32-bit uniforms from one output. No state is carried
+between pixels, threads or line ranges, which is what makes any split of a frame bit-identical
+(DESIGN.md, invariant 1).
 """
 
 import numpy as np

@@ -5,236 +5,118 @@ guide is ``docs/scene-format.md``. Every model forbids unknown keys and non-fini
 typo or a NaN is an error at load time rather than a surprise in the image.
 """
 
-import math
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import (
-    AfterValidator,
-    BaseModel,
-    ConfigDict,
-    Discriminator,
-    Field,
-    Tag,
-    field_validator,
-    model_validator,
-)
+from pydantic import Field, field_validator, model_validator
 
 from tracer import config
 from tracer.maths import portable
+from tracer.scene.format_animation import (
+    MAX_FRAMES,
+    AnimationSettings,
+    CameraKeyframe,
+    CameraTrack,
+    ObjectKeyframe,
+    ObjectTrack,
+    Time,
+    Vec4,
+)
+from tracer.scene.format_base import (
+    Finite,
+    NonNegative,
+    Positive,
+    Radiance,
+    Reflectance,
+    Strict,
+    Transform,
+    Unit,
+    Vec3,
+    Vec4Row,
+)
+from tracer.scene.format_lights import (
+    ConstantSky,
+    Direction,
+    EnvironmentSky,
+    GradientSky,
+    Light,
+    PointLight,
+    Sky,
+    SpotLight,
+    SunLight,
+)
+from tracer.scene.format_materials import (
+    MATERIAL_TYPES,
+    ConductorMaterial,
+    DielectricMaterial,
+    DiffuseMaterial,
+    Ior,
+    Material,
+    MirrorMaterial,
+    PlasticMaterial,
+    PositiveVec3,
+    Roughness,
+    Texture,
+)
+
+__all__ = [
+    "FORMAT",
+    "INTEGRATORS",
+    "MATERIAL_TYPES",
+    "MAX_FRAMES",
+    "AnimationSettings",
+    "Box",
+    "Camera",
+    "CameraKeyframe",
+    "CameraTrack",
+    "ConductorMaterial",
+    "ConstantSky",
+    "DielectricMaterial",
+    "DiffuseMaterial",
+    "Direction",
+    "EffectName",
+    "EnvironmentSky",
+    "Finite",
+    "GradientSky",
+    "Ior",
+    "Light",
+    "Material",
+    "MeshFile",
+    "MirrorMaterial",
+    "NonNegative",
+    "ObjectKeyframe",
+    "ObjectTrack",
+    "Plane",
+    "PlasticMaterial",
+    "PointLight",
+    "Positive",
+    "PositiveVec3",
+    "Radiance",
+    "Rectangle",
+    "Reflectance",
+    "RenderSettings",
+    "Roughness",
+    "SceneFile",
+    "SceneObject",
+    "Shape",
+    "Sky",
+    "Sphere",
+    "SpotLight",
+    "Strict",
+    "SunLight",
+    "Texture",
+    "Time",
+    "Transform",
+    "Unit",
+    "Vec3",
+    "Vec4",
+    "Vec4Row",
+    "override",
+]
+"""The format's public names: the models defined here and those of its parts (``format_base``,
+``format_materials``, ``format_lights``, ``format_animation``), which are used through here."""
 
 FORMAT = "tilerender/1"
-
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-Vec3 = tuple[Finite, Finite, Finite]
-Vec4Row = tuple[Finite, Finite, Finite, Finite]
-Unit = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
-Reflectance = tuple[Unit, Unit, Unit]
-Radiance = tuple[NonNegative, NonNegative, NonNegative]
-
-
-class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Transform(Strict):
-    """Placement of an object: ``matrix`` (row-major 4x4, affine), or translate/rotate/scale.
-
-    With translate/rotate/scale the matrix is ``T @ R @ S``: scale first, then rotate about the
-    x, y and z axes in that order (degrees), then translate.
-    """
-
-    translate: Vec3 = (0.0, 0.0, 0.0)
-    rotate: Vec3 = Field(default=(0.0, 0.0, 0.0), description="Euler angles in degrees, XYZ order")
-    scale: Finite | Vec3 = 1.0
-    matrix: tuple[Vec4Row, Vec4Row, Vec4Row, Vec4Row] | None = None
-
-    @model_validator(mode="after")
-    def _check(self) -> "Transform":
-        if self.matrix is not None and (
-            self.translate != (0.0, 0.0, 0.0) or self.rotate != (0.0, 0.0, 0.0) or self.scale != 1.0
-        ):
-            raise ValueError("give either matrix or translate/rotate/scale, not both")
-        m = self.to_matrix()
-        if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
-            raise ValueError("matrix must be affine: its last row must be [0, 0, 0, 1]")
-        with np.errstate(all="ignore"):  # an overflowing determinant is refused just below
-            det = portable.det3(m)
-        if not np.isfinite(det) or det == 0.0:
-            raise ValueError("transform is singular (zero scale or a degenerate matrix)")
-        return self
-
-    def to_matrix(self) -> np.ndarray:
-        """The 4x4 float64 matrix this transform describes."""
-        if self.matrix is not None:
-            return np.array(self.matrix, dtype=np.float64)
-        scale = np.broadcast_to(np.asarray(self.scale, dtype=np.float64), (3,))
-        rx, ry, rz = (math.radians(a) for a in self.rotate)
-        cx, sx, cy, sy, cz, sz = (
-            math.cos(rx),
-            math.sin(rx),
-            math.cos(ry),
-            math.sin(ry),
-            math.cos(rz),
-            math.sin(rz),
-        )
-        rot_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-        rot_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-        rot_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-        m = np.eye(4)
-        with np.errstate(all="ignore"):  # huge scales overflow to inf: refused as singular
-            m[:3, :3] = portable.chain(rot_z, rot_y, rot_x, np.diag(scale))
-        m[:3, 3] = self.translate
-        return m
-
-
-class Texture(Strict):
-    """An image that multiplies a material's base colour, looked up through the mesh's UVs with
-    bilinear filtering (docs/materials.md).
-
-    ``file`` is relative to the scene file (PNG, JPEG and the other formats Pillow reads);
-    colour images are sRGB-encoded and decoded to linear on load. ``u`` runs left to right and
-    ``v`` bottom to top across the image (OBJ's and OpenGL's convention; glTF files are
-    converted on load)."""
-
-    file: str = Field(min_length=1, description="Image file, relative to the scene file")
-    wrap: Literal["repeat", "clamp"] = Field(
-        default="repeat",
-        description="Outside [0, 1]: repeat the image (tiling), or clamp to its edge texels",
-    )
-    scale: tuple[Positive, Positive] = Field(
-        default=(1.0, 1.0), description="UVs are multiplied by this before the lookup (tiling)"
-    )
-
-
-class _Opaque(Strict):
-    """What every opaque material has: emission (an area light), sidedness and an optional
-    base-colour texture."""
-
-    emission: Radiance = Field(
-        default=(0.0, 0.0, 0.0), description="Emitted radiance, linear RGB (W sr^-1 m^-2)"
-    )
-    two_sided: bool = Field(
-        default=True,
-        description="Reflect and emit on both sides; one-sided surfaces are black from the back "
-        "(the back is the side the counter-clockwise winding faces away from)",
-    )
-    texture: Texture | None = Field(
-        default=None,
-        description="An image multiplying the base colour (reflectance) through the mesh's "
-        "UVs; the mesh must have UVs",
-    )
-
-
-class DiffuseMaterial(_Opaque):
-    """Lambertian reflector, optionally emissive (an area light)."""
-
-    type: Literal["diffuse"] = "diffuse"
-    reflectance: Reflectance = (0.8, 0.8, 0.8)
-
-
-class MirrorMaterial(_Opaque):
-    """Perfect specular reflector: every ray leaves in the mirror direction, scaled by
-    ``reflectance`` (no Fresnel term)."""
-
-    type: Literal["mirror"]
-    reflectance: Reflectance = (1.0, 1.0, 1.0)
-
-
-Ior = Annotated[float, Field(gt=0.0, le=10.0, allow_inf_nan=False)]
-
-
-class DielectricMaterial(Strict):
-    """Smooth glass-like boundary: Fresnel reflection and refraction, total internal reflection,
-    and Beer-Lambert absorption inside. Needs closed meshes whose triangles face outward (the
-    front side is outside); always two-sided, never emissive."""
-
-    type: Literal["dielectric"]
-    ior: Ior = Field(default=1.5, description="Index of refraction inside / outside")
-    absorption: Radiance = Field(
-        default=(0.0, 0.0, 0.0),
-        description="Absorption coefficient inside, per unit of scene length (Beer-Lambert)",
-    )
-
-
-Roughness = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
-PositiveVec3 = tuple[Positive, Positive, Positive]
-
-
-class ConductorMaterial(_Opaque):
-    """Metal: GGX microfacet reflection with the conductor Fresnel term (visible-normal
-    sampling); roughness 0 is a smooth metal. The Fresnel term comes from ``eta`` and ``k``
-    (complex index of refraction per channel) or, if they are not given, from ``reflectance``
-    (the colour at normal incidence; docs/materials.md gives the mapping)."""
-
-    type: Literal["conductor"]
-    reflectance: Reflectance | None = Field(
-        default=None, description="Colour at normal incidence (default 0.9 grey)"
-    )
-    eta: PositiveVec3 | None = Field(default=None, description="Real part of the index")
-    k: tuple[NonNegative, NonNegative, NonNegative] | None = Field(
-        default=None, description="Imaginary part of the index (extinction)"
-    )
-    roughness: Roughness = Field(default=0.0, description="GGX alpha = roughness^2")
-
-    @model_validator(mode="after")
-    def _check(self) -> "ConductorMaterial":
-        if (self.eta is None) != (self.k is None):
-            raise ValueError("give eta and k together")
-        if self.eta is not None and self.reflectance is not None:
-            raise ValueError("give either reflectance or eta and k, not both")
-        return self
-
-
-class PlasticMaterial(_Opaque):
-    """Coated diffuse: a Lambertian base under a dielectric coat with a GGX rough surface
-    (a specular lobe with the dielectric Fresnel term, and the base's light scaled by the
-    coat's transmission; docs/materials.md)."""
-
-    type: Literal["plastic"]
-    reflectance: Reflectance = Field(default=(0.5, 0.5, 0.5), description="Base colour")
-    ior: Annotated[float, Field(gt=1.0, le=3.0, allow_inf_nan=False)] = Field(
-        default=1.5, description="Index of refraction of the coat"
-    )
-    roughness: Roughness = Field(
-        default=0.1, description="GGX alpha = roughness^2 (at least 0.001)"
-    )
-
-
-def _tag(default: str, *others: str):
-    """A discriminator that reads ``type`` and takes ``default`` when it is missing."""
-
-    def tag(value):
-        if isinstance(value, dict):
-            return value.get("type", default)
-        return getattr(value, "type", default)
-
-    known = ", ".join(repr(t) for t in (default, *others))
-    return Discriminator(
-        tag,
-        custom_error_type="invalid_type_tag",
-        custom_error_message=f"type must be one of {known} (default {default!r})",
-    )
-
-
-Material = Annotated[
-    Annotated[DiffuseMaterial, Tag("diffuse")]
-    | Annotated[MirrorMaterial, Tag("mirror")]
-    | Annotated[DielectricMaterial, Tag("dielectric")]
-    | Annotated[ConductorMaterial, Tag("conductor")]
-    | Annotated[PlasticMaterial, Tag("plastic")],
-    _tag("diffuse", "mirror", "dielectric", "conductor", "plastic"),
-]
-"""Material kinds, a union on ``type`` (``diffuse`` when it is missing); docs/materials.md."""
-MATERIAL_TYPES = (
-    DiffuseMaterial,
-    MirrorMaterial,
-    DielectricMaterial,
-    ConductorMaterial,
-    PlasticMaterial,
-)
 
 
 class MeshFile(Strict):
@@ -402,216 +284,6 @@ class RenderSettings(Strict):
                 "where the scene needs it"
             )
         return value
-
-
-class ConstantSky(Strict):
-    """The same radiance from every direction no surface blocks."""
-
-    type: Literal["constant"] = "constant"
-    radiance: Radiance = Field(
-        default=(0.0, 0.0, 0.0), description="Radiance from every direction nothing blocks"
-    )
-
-
-class GradientSky(Strict):
-    """Radiance by elevation (+y is up): ``horizon`` at the horizon to ``zenith`` straight up,
-    linear in the sine of the elevation; ``ground`` from every direction below the horizon."""
-
-    type: Literal["gradient"]
-    zenith: Radiance
-    horizon: Radiance
-    ground: Radiance = (0.0, 0.0, 0.0)
-
-
-class EnvironmentSky(Strict):
-    """An equirectangular (latitude-longitude) HDR image of the radiance at infinity: +y is up,
-    the image's top row looks straight up and its bottom row straight down, ``u`` (left to
-    right) runs along the azimuth, and the image centre looks along -z (the default camera's
-    view); docs/scene-format.md. Light samples pick its bright pixels more often (importance
-    sampling by luminance)."""
-
-    type: Literal["environment"]
-    file: str = Field(
-        min_length=1,
-        description="An OpenEXR (.exr, R, G and B channels) or NumPy (.npy, float (H, W, 3)) "
-        "image of linear RGB radiance, relative to the scene file and inside its directory",
-    )
-    scale: NonNegative = Field(default=1.0, description="Factor on the image's radiance")
-    rotation: Finite = Field(
-        default=0.0,
-        description="Degrees about the up axis (+y), counter-clockwise seen from above (the "
-        "sense of an object's rotate about y)",
-    )
-
-
-Sky = Annotated[
-    Annotated[ConstantSky, Tag("constant")]
-    | Annotated[GradientSky, Tag("gradient")]
-    | Annotated[EnvironmentSky, Tag("environment")],
-    _tag("constant", "gradient", "environment"),
-]
-
-
-def _unit_direction(value):
-    v = np.asarray(value, dtype=np.float64)
-    norm = portable.norm(v)
-    if not norm > 0.0 or not np.isfinite(norm):
-        raise ValueError("a direction must be a non-zero finite vector")
-    return tuple(float(c) for c in v / norm)
-
-
-Direction = Annotated[Vec3, AfterValidator(_unit_direction)]
-
-
-class PointLight(Strict):
-    """Light from one point, the same intensity in every direction."""
-
-    type: Literal["point"]
-    position: Vec3
-    intensity: Radiance = Field(description="Radiant intensity, linear RGB (W sr^-1)")
-
-
-class SpotLight(Strict):
-    """A point light restricted to a cone about the direction from ``position`` to
-    ``look_at``: full intensity out to ``cone_angle_deg - falloff_deg`` from the axis, then a
-    smooth falloff to zero at ``cone_angle_deg`` (pbrt-v4's smoothstep)."""
-
-    type: Literal["spot"]
-    position: Vec3
-    look_at: Vec3
-    intensity: Radiance = Field(description="Radiant intensity on the axis (W sr^-1)")
-    cone_angle_deg: float = Field(default=30.0, gt=0.0, le=90.0)
-    falloff_deg: float = Field(default=5.0, ge=0.0, le=90.0)
-
-    @model_validator(mode="after")
-    def _check(self) -> "SpotLight":
-        if not portable.norm(np.subtract(self.look_at, self.position)) > 0.0:
-            raise ValueError("look_at must differ from position")
-        if self.falloff_deg > self.cone_angle_deg:
-            raise ValueError("falloff_deg must not exceed cone_angle_deg")
-        return self
-
-
-class SunLight(Strict):
-    """A distant disc: light from directions within ``angular_radius_deg`` of ``to_sun``,
-    with ``irradiance`` on a surface facing it. Radius 0 is a directional light (hard shadows);
-    a radius gives soft shadows, and rays can see the disc."""
-
-    type: Literal["sun"]
-    to_sun: Direction = Field(description="Direction from the scene toward the sun")
-    irradiance: Radiance = Field(
-        description="Irradiance on a surface facing the sun, linear RGB (W m^-2)"
-    )
-    angular_radius_deg: float = Field(
-        default=0.265, ge=0.0, le=45.0, description="Half-angle of the disc (the sun's: 0.265)"
-    )
-
-
-Light = Annotated[PointLight | SpotLight | SunLight, Field(discriminator="type")]
-
-
-MAX_FRAMES = 100_000
-"""Most frames an animation may have."""
-
-Time = Annotated[float, Field(ge=0.0, allow_inf_nan=False, description="Seconds from frame 0")]
-Vec4 = tuple[Finite, Finite, Finite, Finite]
-
-
-def _strictly_increasing(keys: list) -> list:
-    """A track's check: at least one key, times strictly increasing."""
-    if not keys:
-        raise ValueError("a track needs at least one key")
-    for i in range(1, len(keys)):
-        if not keys[i].time > keys[i - 1].time:
-            raise ValueError(
-                f"key times must increase strictly: key {i} (time {keys[i].time}) does not "
-                f"come after key {i - 1} (time {keys[i - 1].time})"
-            )
-    return keys
-
-
-class ObjectKeyframe(Strict):
-    """A keyframe of an object's transform (relative to its parent, like ``transform``).
-
-    Omitted fields take the value of the object's own ``transform`` (its translate, rotation and
-    scale; a ``matrix`` transform is split into those). ``rotate`` (Euler angles, as in
-    ``transform``) and ``rotation`` (a quaternion) are alternatives.
-    """
-
-    time: Time
-    translate: Vec3 | None = None
-    rotate: Vec3 | None = Field(default=None, description="Euler angles in degrees, XYZ order")
-    rotation: Vec4 | None = Field(
-        default=None, description="Unit quaternion (w, x, y, z); normalised on load"
-    )
-    scale: Finite | Vec3 | None = None
-
-    @field_validator("rotation")
-    @classmethod
-    def _normalise(cls, value):
-        if value is None:
-            return value
-        q = np.asarray(value, dtype=np.float64)
-        largest = np.max(np.abs(q))
-        if largest == 0.0:
-            raise ValueError("rotation must be a non-zero quaternion (w, x, y, z)")
-        q = q / largest  # no overflow in the norm
-        return tuple(float(c) for c in q / portable.norm(q))
-
-    @field_validator("scale")
-    @classmethod
-    def _non_zero(cls, value):
-        if value is not None and 0.0 in np.atleast_1d(value):
-            raise ValueError("scale must not be zero (a zero scale is singular)")
-        return value
-
-    @model_validator(mode="after")
-    def _check(self) -> "ObjectKeyframe":
-        if self.rotate is not None and self.rotation is not None:
-            raise ValueError(
-                "give either rotate (Euler angles) or rotation (a quaternion), not both"
-            )
-        return self
-
-
-class CameraKeyframe(Strict):
-    """A keyframe of the camera; omitted fields take the value of the scene's ``camera``."""
-
-    time: Time
-    position: Vec3 | None = None
-    look_at: Vec3 | None = None
-    up: Vec3 | None = None
-    vfov_deg: float | None = Field(
-        default=None, gt=0.0, lt=180.0, description="Vertical field of view"
-    )
-
-
-ObjectTrack = Annotated[
-    list[ObjectKeyframe],
-    Field(json_schema_extra={"minItems": 1}),
-    AfterValidator(_strictly_increasing),
-]
-CameraTrack = Annotated[
-    list[CameraKeyframe],
-    Field(json_schema_extra={"minItems": 1}),
-    AfterValidator(_strictly_increasing),
-]
-
-
-class AnimationSettings(Strict):
-    """Keyframe tracks for objects (by name) and the camera, played at ``fps`` for ``frames``.
-
-    Frame ``f`` shows time ``f / fps``; between keys values are interpolated (rotations by
-    slerp), before the first key and after the last a track holds still.
-    """
-
-    fps: Positive = Field(default=24.0, description="Frames per second")
-    frames: int = Field(ge=1, le=MAX_FRAMES, description="Number of frames (required)")
-    objects: dict[str, ObjectTrack] = Field(
-        default_factory=dict,
-        description="Object name -> keys; the object must be named uniquely and not be static",
-    )
-    camera: CameraTrack | None = Field(default=None, description="Camera keys")
 
 
 class SceneFile(Strict):

@@ -66,12 +66,6 @@ def square_to_uniform_sphere(u1, u2):
 
 
 @jit
-def square_to_uniform_sphere_pdf():
-    """Solid-angle density of :func:`square_to_uniform_sphere`: 1 / (4 pi)."""
-    return 0.25 * INV_PI
-
-
-@jit
 def square_to_uniform_cone(u1, u2, one_minus_cos_max, axis):
     """Unit vector uniformly distributed in the cone of half-angle theta_max about the unit
     ``axis``, given ``1 - cos(theta_max)`` (kept apart to avoid cancellation for small cones)."""
@@ -82,9 +76,3 @@ def square_to_uniform_cone(u1, u2, one_minus_cos_max, axis):
     local = (sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t)
     s, t = coordinate_system(axis)
     return to_world(local, s, t, axis)
-
-
-@jit
-def square_to_uniform_cone_pdf(one_minus_cos_max):
-    """Solid-angle density of :func:`square_to_uniform_cone`."""
-    return 1.0 / (2.0 * math.pi * one_minus_cos_max)

@@ -1,0 +1,82 @@
+"""The pixel loop every integrator shares: a run of a frame's pixels, split over threads.
+
+A kernel renders pixel blocks ``part, part + parts, ...`` of the pixel run [p0, p1) (pixels in
+row-major order, index ``y * W + x``) into rows of the lines the run touches; ``trace_run``
+gives each thread its traversal stacks, runs the parts and slices the run out of those rows.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracer import config
+from tracer.compiled.scene import CompiledScene
+from tracer.kernel.threads import run_parts
+from tracer.scene import format as fmt
+from tracer.shading.camera import camera_array
+
+
+@dataclass(frozen=True)
+class PixelRun:
+    """What a kernel needs of a render besides the scene: the camera (``camera_array``), the
+    frame's size, the pixel run [p0, p1), the first sample, the settings, the frame and the
+    effect plan's flags."""
+
+    camera: np.ndarray
+    width: int
+    height: int
+    p0: int
+    p1: int
+    sample_start: int
+    settings: fmt.RenderSettings
+    frame: int
+    flags: int
+
+
+def pixel_run(
+    scene: CompiledScene,
+    camera: fmt.Camera,
+    settings: fmt.RenderSettings,
+    p0: int,
+    p1: int,
+    frame: int,
+    sample_start: int,
+    flags: int,
+) -> PixelRun:
+    """The run [p0, p1) of a frame seen by ``camera`` (in world units; the kernels work in the
+    scene's render space, about ``scene.origin``)."""
+    cam = camera_array(
+        np.asarray(camera.position) - scene.origin,
+        np.asarray(camera.look_at) - scene.origin,
+        camera.up,
+        camera.vfov_deg,
+        camera.width,
+        camera.height,
+        camera.aperture_radius,
+        camera.focus_distance,
+    )
+    return PixelRun(cam, camera.width, camera.height, p0, p1, sample_start, settings, frame, flags)
+
+
+def trace_run(
+    kernel: Callable[..., None], arguments: tuple, run: PixelRun, threads: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Call ``kernel(*arguments, part, parts, stack_node, stack_t, out_rgb, out_cost, out_rays)``
+    on ``threads`` threads (default: every CPU this process may use); returns the run's pixels:
+    ``rgb`` float32 (n, 3), ``cost`` int64 (n,) and ``rays`` int64 (n,), n = p1 - p0."""
+    width = run.width
+    y_first = run.p0 // width
+    rows = (run.p1 - 1) // width + 1 - y_first
+    rgb = np.empty((rows, width, 3), np.float32)
+    cost = np.empty((rows, width), np.int64)
+    rays = np.empty((rows, width), np.int64)
+
+    def work(part: int, parts: int) -> None:
+        stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
+        stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
+        kernel(*arguments, part, parts, stack_node, stack_t, rgb, cost, rays)
+
+    run_parts(work, threads)
+    part = slice(run.p0 - y_first * width, run.p1 - y_first * width)
+    return rgb.reshape(-1, 3)[part], cost.reshape(-1)[part], rays.reshape(-1)[part]

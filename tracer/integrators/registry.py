@@ -1,0 +1,136 @@
+"""The integrators by name, as pbrt's ``Integrator::Create``: each name's kernel, the builder of
+its arguments, and what the effect plan needs to know of it.
+
+``path``, ``direct`` (a path of two vertices), ``whitted`` and ``cost`` (the path kernel's work
+as a heat map, ``tracer.io.heatmap``) run ``tracer.integrators.path``; ``ao``, ``albedo``,
+``normal`` and ``depth`` run ``tracer.integrators.surface``. The names are the scene format's
+(``tracer.scene.format.INTEGRATORS``; a test keeps them equal).
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracer import config
+from tracer.compiled.arrays import SceneArrays
+from tracer.compiled.scene import CompiledScene
+from tracer.integrators import path, surface
+from tracer.integrators.flags import INDIRECT, TEXTURES, light_kinds
+from tracer.integrators.pixels import PixelRun
+from tracer.maths import portable
+from tracer.shading.lights import light_arrays, scene_fields
+
+Arguments = Callable[[CompiledScene, PixelRun], tuple]
+"""Builds a kernel's leading arguments (all but the part, the stacks and the outputs)."""
+
+
+@dataclass(frozen=True)
+class Integrator:
+    """An integrator: its kernel for a plan's flags, its arguments, and its traits."""
+
+    name: str
+    kernel: Callable[[int], Callable[..., None]]
+    """The jitted kernel for a plan's flags (``tracer.integrators.pixels.trace_run`` calls it)."""
+    arguments: Arguments
+    samples_lights: bool
+    """Whether it samples lights (next-event estimation)."""
+    indirect: bool
+    """Whether its paths go past two vertices (the plan's ``INDIRECT``)."""
+    reads_colour: bool
+    """Whether it reads base colours (the plan's ``TEXTURES``)."""
+    heat_map: bool = False
+    """Whether its image is the work per pixel as a heat map, not the kernel's ``rgb``."""
+
+
+def arrays_for_plan(scene: CompiledScene, flags: int) -> SceneArrays:
+    """The scene's arrays with only the lights a plan's flags keep (the same arrays when they
+    keep every light the scene has)."""
+    kinds = light_kinds(flags)
+    present = {int(k) for k in scene.lights.kind[scene.lights.weight > 0.0]}
+    if present <= kinds:
+        return scene.arrays
+    light = light_arrays(scene.lights, kinds)
+    return scene.arrays._replace(**scene_fields(light))
+
+
+def scene_diagonal(scene: CompiledScene) -> float:
+    """Length of the diagonal of the scene's bounding box (world units)."""
+    return portable.norm(np.subtract(scene.stats.bounds_max, scene.stats.bounds_min))
+
+
+def _path(name: str, mode: int, indirect: bool, heat_map: bool = False) -> Integrator:
+    """A path-kernel integrator in ``mode`` (``path.PATH`` or ``path.WHITTED``); a ``PATH``
+    mode without ``indirect`` (or without the plan's ``INDIRECT``) stops at two vertices."""
+
+    def arguments(scene: CompiledScene, run: PixelRun) -> tuple:
+        settings = run.settings
+        max_depth = settings.max_depth
+        if mode == path.PATH and not (indirect and run.flags & INDIRECT):
+            max_depth = min(max_depth, 2)
+        return (
+            arrays_for_plan(scene, run.flags),
+            run.camera,
+            run.width,
+            run.height,
+            run.p0,
+            run.p1,
+            run.sample_start,
+            settings.spp,
+            max_depth,
+            settings.rr_depth,
+            settings.seed,
+            run.frame,
+            1.0 - config.SHADOW_EPSILON,
+            mode,
+            run.flags,
+        )
+
+    return Integrator(name, path.kernel_for, arguments, True, indirect, True, heat_map)
+
+
+def _surface(name: str, output: int) -> Integrator:
+    """A surface-kernel integrator for ``output`` (``surface.AO``, ``ALBEDO``, ...)."""
+
+    def arguments(scene: CompiledScene, run: PixelRun) -> tuple:
+        settings = run.settings
+        return (
+            scene.arrays,
+            run.camera,
+            run.width,
+            run.height,
+            run.p0,
+            run.p1,
+            run.sample_start,
+            settings.spp,
+            settings.seed,
+            run.frame,
+            output,
+            settings.ao_samples,
+            settings.ao_distance * scene_diagonal(scene),
+            bool(run.flags & TEXTURES),
+        )
+
+    def kernel(flags: int) -> Callable[..., None]:
+        return surface.render_surface
+
+    return Integrator(name, kernel, arguments, False, False, output == surface.ALBEDO)
+
+
+REGISTRY: dict[str, Integrator] = {
+    i.name: i
+    for i in (
+        _path("path", path.PATH, indirect=True),
+        _path("direct", path.PATH, indirect=False),
+        _path("whitted", path.WHITTED, indirect=False),
+        _surface("ao", surface.AO),
+        _surface("albedo", surface.ALBEDO),
+        _surface("normal", surface.NORMAL),
+        _surface("depth", surface.DEPTH),
+        _path("cost", path.PATH, indirect=True, heat_map=True),
+    )
+}
+"""Every integrator, by name, in the scene format's order."""
+
+NAMES: tuple[str, ...] = tuple(REGISTRY)
+"""The integrators' names (``tracer.scene.format.INTEGRATORS``)."""
