@@ -156,7 +156,7 @@ def spot_lit_studio():
 
 def scene_states(args: argparse.Namespace):
     """(name, state) of every sample scene, then the spot-lit studio."""
-    from cli.commands import sample_scene_files
+    from cli.commands.samples import sample_scene_files
     from tracer.scene.loader import load_scene
 
     for path in sample_scene_files(REPO_ROOT / "scenes"):

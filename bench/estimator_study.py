@@ -52,7 +52,7 @@ from cli.accuracy_reference import (
     own_reference,
     reference_settings,
 )
-from cli.commands import sample_scene_files
+from cli.commands.samples import sample_scene_files
 from tracer.accuracy import error_estimate as ee
 from tracer.accuracy.spot_check import SpotCheckLedger, render_spot_checks
 from tracer.compiled.scene import CompiledScene, compile_scene

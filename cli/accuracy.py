@@ -44,8 +44,15 @@ from tracer.accuracy.error_estimate import (
 )
 from tracer.accuracy.spot_check import SpotCheckLedger, render_spot_checks
 from tracer.compiled.scene import CompiledScene, compile_scene
-from tracer.integrators import effects
 from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.flags import (
+    EFFECTS,
+    LIGHT_SAMPLES,
+    MATERIAL_BUILD,
+    MATERIAL_EFFECTS,
+    NO_MIS,
+    SHADOWS,
+)
 from tracer.kernel.threads import default_threads
 from tracer.render import render_image
 from tracer.scene import format as fmt
@@ -97,9 +104,9 @@ class Config:
     label: str
     changes: dict = field(default_factory=dict)
     drop: int = 0
-    """Effect flags removed from the scene's plan (``tracer.integrators.effects``)."""
+    """Effect flags removed from the scene's plan (``tracer.integrators.flags``)."""
     add: int = 0
-    """Kernel switches added to the plan (``tracer.integrators.effects.NO_MIS``)."""
+    """Kernel switches added to the plan (``tracer.integrators.flags.NO_MIS``)."""
 
     def settings(self, base: fmt.RenderSettings) -> fmt.RenderSettings:
         return fmt.override(base, **self.changes)
@@ -114,7 +121,7 @@ class Config:
 
 def names(flags: int) -> list[str]:
     """Names of the effect flags in ``flags``."""
-    return [name for name, bit in effects.EFFECTS.items() if flags & bit]
+    return [name for name, bit in EFFECTS.items() if flags & bit]
 
 
 def configurations(base: fmt.RenderSettings) -> list[Config]:
@@ -134,11 +141,11 @@ def configurations(base: fmt.RenderSettings) -> list[Config]:
     configs += [
         Config("path-no-rr", "path, no Russian roulette", {"rr_depth": depth}),
         Config("path-no-plan", "path, every effect (no effect plan)", {"effect_plan": False}),
-        Config("path-no-mis", "path, light samples without MIS", add=effects.NO_MIS),
+        Config("path-no-mis", "path, light samples without MIS", add=NO_MIS),
         Config(
             "path-bsdf",
             "path, BSDF sampling only (no light samples, no MIS)",
-            drop=effects.LIGHT_SAMPLES | effects.SHADOWS,
+            drop=LIGHT_SAMPLES | SHADOWS,
         ),
         Config("direct", "direct light (NEE + MIS, two vertices)", {"integrator": "direct"}),
         Config("whitted", "Whitted (direct light, specular recursion)", {"integrator": "whitted"}),
@@ -294,10 +301,10 @@ def sweep(
 
 
 EFFECT_STAGES = (
-    ("diffuse", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS, False),
-    ("diffuse, material build", "whitted", effects.SHADOWS | effects.MATERIAL_EFFECTS, True),
-    ("diffuse + shadows", "whitted", effects.MATERIAL_EFFECTS, True),
-    ("diffuse + reflection, refraction", "whitted", effects.SHADOWS, True),
+    ("diffuse", "whitted", SHADOWS | MATERIAL_EFFECTS, False),
+    ("diffuse, material build", "whitted", SHADOWS | MATERIAL_EFFECTS, True),
+    ("diffuse + shadows", "whitted", MATERIAL_EFFECTS, True),
+    ("diffuse + reflection, refraction", "whitted", SHADOWS, True),
     ("diffuse + shadows + reflection, refraction", "whitted", 0, True),
     ("all effects", "path", 0, True),
 )
@@ -309,7 +316,7 @@ path tracing adds to Whitted's with every effect. A scene with material effects 
 kernel build with the material dispatch (``tracer.integrators.path.kernel_for``), where every step
 costs more than in the build without it; Reiter's renderer switched effects at run time, in
 one build, so every stage but ``diffuse`` runs in the scene's build
-(``tracer.integrators.effects.MATERIAL_BUILD``), and the build's own cost is a part of its own."""
+(``tracer.integrators.flags.MATERIAL_BUILD``), and the build's own cost is a part of its own."""
 
 
 def effect_parts(median: dict[str, float]) -> dict[str, float]:
@@ -343,7 +350,7 @@ def effect_costs(
     threads = options.threads or default_threads()
     stages = []
     scene_plan = effect_plan(scene, base)
-    build = effects.MATERIAL_BUILD if scene_plan.flags & effects.MATERIAL_EFFECTS else 0
+    build = MATERIAL_BUILD if scene_plan.flags & MATERIAL_EFFECTS else 0
     for name, integrator, drop, scene_build in EFFECT_STAGES:
         settings = fmt.override(base, integrator=integrator, spp=options.effect_spp)
         plan = Config(name, name, drop=drop, add=build if scene_build else 0).plan(scene, settings)

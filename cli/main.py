@@ -18,11 +18,10 @@ from collections.abc import Sequence
 
 from cli.errors import UsageError
 from tracer.errors import TilerenderError
+from tracer.integrators.names import INTEGRATORS
 
 EXIT_FAILED = 1
 EXIT_USAGE = 2
-INTEGRATORS = ("path", "direct", "whitted", "ao", "albedo", "normal", "depth", "cost")
-"""The scene format's integrators (tracer.scene.format.INTEGRATORS; a test keeps them equal)."""
 EXIT_INTERRUPTED = 130
 
 DESCRIPTION = """\

@@ -351,10 +351,16 @@ def test_render_integrator_option(capsys, tmp_path, tiny_scene_file):
     assert np.array_equal(read_image(out), expected)
 
 
-def test_cli_integrators_are_the_formats():
-    from tracer.scene.format import INTEGRATORS
+def test_cli_integrators_are_the_registrys(capsys):
+    """--integrator offers exactly the registry's integrators and refuses another name."""
+    from tracer.integrators.registry import NAMES
 
-    assert cli_main.INTEGRATORS == INTEGRATORS
+    commands = cli_main.build_parser()._subparsers._group_actions[0].choices
+    for command in ("render", "plan"):
+        option = next(a for a in commands[command]._actions if a.dest == "integrator")
+        assert tuple(option.choices) == NAMES, command
+    code, _, err = run(capsys, "render", "scene.json", "--integrator", "no-such")
+    assert code == 2 and "no-such" in err
 
 
 def test_info_counts_dropped_triangles(capsys, tmp_path):

@@ -6,7 +6,7 @@ and in a scene that needs an effect, dropping it changes the image (so the plan 
 import numpy as np
 import pytest
 
-from cli.commands import REPO_SCENES, sample_scene_files
+from cli.commands.samples import REPO_SCENES, sample_scene_files
 from tests.helpers import compile_dict, tiny_scene
 from tests.stats import pass_statistics, welch_pixel_test
 from tracer.compiled.scene import compile_scene

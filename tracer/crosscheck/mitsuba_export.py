@@ -166,6 +166,10 @@ def _check_fields(model, label: str) -> None:
 # --- the writer ------------------------------------------------------------------------------
 
 
+MITSUBA_TWINS: dict[str, int | None] = {"path": None, "direct": 2}
+"""Our integrators that Mitsuba's path integrator renders, and the path depth each caps at."""
+
+
 @dataclass
 class _Writer(MaterialsWriter, EmittersWriter):
     state: SceneState
@@ -223,9 +227,10 @@ class _Writer(MaterialsWriter, EmittersWriter):
         if render.effects:
             off = ", ".join(sorted(render.effects))
             raise UnsupportedFeature(f"effects switched off ({off})", "Mitsuba renders them all")
-        if render.integrator not in ("path", "direct"):
+        if render.integrator not in MITSUBA_TWINS:
+            twins = " and ".join(repr(name) for name in MITSUBA_TWINS)
             raise UnsupportedFeature(
-                f"integrator {render.integrator!r}", "only 'path' and 'direct' have a Mitsuba twin"
+                f"integrator {render.integrator!r}", f"only {twins} have a Mitsuba twin"
             )
         absorbing = any(
             isinstance(self.state.materials[m.material], fmt.DielectricMaterial)
@@ -233,7 +238,8 @@ class _Writer(MaterialsWriter, EmittersWriter):
             for m in self.meshes
         )
         self.integrator = "volpath" if absorbing else "path"
-        max_depth = render.max_depth if render.integrator == "path" else min(render.max_depth, 2)
+        cap = MITSUBA_TWINS[render.integrator]
+        max_depth = render.max_depth if cap is None else min(render.max_depth, cap)
         element = child(root, "integrator", type=self.integrator)
         child(element, "integer", name="max_depth", value=max_depth)
         child(element, "integer", name="rr_depth", value=render.rr_depth)

@@ -4,7 +4,7 @@ its arguments, and what the effect plan needs to know of it.
 ``path``, ``direct`` (a path of two vertices), ``whitted`` and ``cost`` (the path kernel's work
 as a heat map, ``tracer.io.heatmap``) run ``tracer.integrators.path``; ``ao``, ``albedo``,
 ``normal`` and ``depth`` run ``tracer.integrators.surface``. The names are the scene format's
-(``tracer.scene.format.INTEGRATORS``; a test keeps them equal).
+(``tracer.integrators.names.INTEGRATORS``; a test keeps them equal).
 """
 
 from collections.abc import Callable
@@ -133,4 +133,4 @@ REGISTRY: dict[str, Integrator] = {
 """Every integrator, by name, in the scene format's order."""
 
 NAMES: tuple[str, ...] = tuple(REGISTRY)
-"""The integrators' names (``tracer.scene.format.INTEGRATORS``)."""
+"""The integrators' names (``tracer.integrators.names.INTEGRATORS``)."""

@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from tracer import config
+from tracer.integrators.names import INTEGRATORS
 from tracer.maths import portable
 from tracer.scene.format_animation import (
     MAX_FRAMES,
@@ -220,7 +221,6 @@ class Camera(Strict):
         return self
 
 
-INTEGRATORS = ("path", "direct", "whitted", "ao", "albedo", "normal", "depth", "cost")
 EffectName = Literal[
     "area_lights",
     "point_lights",

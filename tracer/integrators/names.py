@@ -1,0 +1,7 @@
+"""The integrators' names: the one list the scene format, the registry and the CLI use.
+
+Kept apart from the kernels so that the format and the command line's parser read it without
+importing them (``tracer.integrators.registry`` holds an entry for each name, in this order).
+"""
+
+INTEGRATORS = ("path", "direct", "whitted", "ao", "albedo", "normal", "depth", "cost")
