@@ -338,7 +338,7 @@ class RenderService:
             **self.cluster_info,
             "tracers": tracers,
             "balancer": self.coordinator.balancer_name,
-            "stats": dict(getattr(self.coordinator, "stats", {})),
+            "stats": dict(self.coordinator.stats),
         }
 
     def _record_frame(self, frame, kind: str) -> None:

@@ -9,7 +9,12 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("tracer", "worker", "cluster", "api", "cli")
 MAX_LINES = 600
-LONG_MODULES: dict[str, str] = {}
+LONG_MODULES: dict[str, str] = {
+    "tracer/geometry/bvh.py": "one tree: the builder and the traversal layout it converts into, "
+    "whose invariants the builder establishes (2% over)",
+    "api/service.py": "the render thread's one loop of turns (jobs, sessions, calls) and the "
+    "docstring of its ownership rule (1% over)",
+}
 """Modules allowed past ``MAX_LINES``, each with its reason."""
 
 MAY_IMPORT = {

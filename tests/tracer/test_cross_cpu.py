@@ -118,20 +118,10 @@ def array_digests(scene, camera) -> dict[str, str]:
     difference in compilation or in the intersection code shows here even where float32
     pixels round it away."""
     from tracer.geometry.query import scene_hits
-    from tracer.shading.camera import camera_array
+    from tracer.integrators.pixels import pixel_run
 
-    named = {
-        "camera": camera_array(
-            np.asarray(camera.position) - scene.origin,
-            np.asarray(camera.look_at) - scene.origin,
-            camera.up,
-            camera.vfov_deg,
-            camera.width,
-            camera.height,
-            camera.aperture_radius,
-            camera.focus_distance,
-        )
-    }
+    run = pixel_run(scene, camera, scene.render, 0, 1, frame=0, sample_start=0, flags=0)
+    named = {"camera": run.camera}
     for name, value in scene.arrays._asdict().items():
         if isinstance(value, tuple):
             named.update({f"{name}[{k}]": part for k, part in enumerate(value)})

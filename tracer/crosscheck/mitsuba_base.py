@@ -62,6 +62,12 @@ def to_world(parent: ET.Element, matrix: np.ndarray) -> None:
     child(transform, "matrix", value=" ".join(number(v) for v in np.ravel(matrix)))
 
 
+def look_at(parent: ET.Element, origin, target, up) -> None:
+    """A ``to_world`` transform of ``parent`` that looks from ``origin`` at ``target``."""
+    transform = child(parent, "transform", name="to_world")
+    child(transform, "lookat", origin=triple(origin), target=triple(target), up=triple(up))
+
+
 def slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-")[:40] or "mesh"
 

@@ -12,6 +12,7 @@ from tracer.crosscheck.mitsuba_base import (
     UnsupportedFeature,
     child,
     frame,
+    look_at,
     rgb,
     scalar,
     to_world,
@@ -109,14 +110,7 @@ class EmittersWriter:
         scalar(emitter, "beam_width", light.cone_angle_deg)
         axis = np.subtract(light.look_at, light.position)
         up = frame(axis)[:, 0]
-        transform = child(emitter, "transform", name="to_world")
-        child(
-            transform,
-            "lookat",
-            origin=triple(light.position),
-            target=triple(light.look_at),
-            up=triple(up),
-        )
+        look_at(emitter, light.position, light.look_at, up)
         if light.falloff_deg > 0.0:
             relative = f"textures/spot-{i}.exr"
             write_image(self.out / relative, spot_texture(light.cone_angle_deg, light.falloff_deg))

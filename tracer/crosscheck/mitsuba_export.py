@@ -25,10 +25,10 @@ from tracer.crosscheck.mitsuba_base import (
     DeviationKind,
     UnsupportedFeature,
     child,
+    look_at,
     rgb,
     scalar,
     slug,
-    triple,
 )
 from tracer.crosscheck.mitsuba_conversions import is_closed_outward, winding_numbers
 from tracer.crosscheck.mitsuba_emitters import EmittersWriter
@@ -258,14 +258,7 @@ class _Writer(MaterialsWriter, EmittersWriter):
             focus = camera.focus_distance or portable.norm(forward)
             scalar(sensor, "aperture_radius", camera.aperture_radius)
             scalar(sensor, "focus_distance", focus)
-        transform = child(sensor, "transform", name="to_world")
-        child(
-            transform,
-            "lookat",
-            origin=triple(camera.position),
-            target=triple(camera.look_at),
-            up=triple(camera.up),
-        )
+        look_at(sensor, camera.position, camera.look_at, camera.up)
         sampler = child(sensor, "sampler", type="independent")
         child(sampler, "integer", name="sample_count", value=self.state.render.spp)
         film = child(sensor, "film", type="hdrfilm")
