@@ -16,6 +16,7 @@ class CountingCoordinator:
 
     def __init__(self, new_ids=(), fail=False):
         self.calls, self.new_ids, self.fail = 0, list(new_ids), fail
+        self.stats = {}
 
     def place_new_nodes(self):
         self.calls += 1
