@@ -36,6 +36,7 @@ from tracer.crosscheck.mitsuba_materials import MaterialsWriter
 from tracer.maths import portable
 from tracer.scene import format as fmt
 from tracer.scene.environment import EnvironmentMap
+from tracer.scene.loader import MESH_SUFFIXES
 from tracer.scene.model import SceneState, WorldMesh
 
 EMITTER_OFFSET = 1e-5
@@ -112,7 +113,8 @@ KNOWN_FIELDS = {
 is refused when it is set, rather than silently dropped."""
 
 
-SCENE_INPUT_SUFFIXES = {".json", ".obj", ".ply", ".stl", ".gltf", ".glb", ".bin"}
+SCENE_INPUT_SUFFIXES = {".json", ".bin", *MESH_SUFFIXES}
+"""Files a scene is read from (the scene file, meshes, glTF buffers)."""
 REFERENCE_RECORD = "mitsuba.json"
 """The record kept next to a scene's stored Mitsuba reference (``bench/mitsuba_references.py``)."""
 

@@ -19,8 +19,6 @@ from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
 
-SUFFIXES = (".exr", ".npy")
-
 
 @dataclass(frozen=True, eq=False)
 class EnvironmentMap:
