@@ -1,23 +1,60 @@
 """Job events for Server-Sent Events: published from any thread, delivered on the event loop.
 
-A subscriber is an ``asyncio.Queue`` on the loop; :meth:`EventHub.publish` hands each event
+A subscriber is a :class:`Subscription` on the loop; :meth:`EventHub.publish` hands each event
 to every subscriber of its topic with ``loop.call_soon_threadsafe``, so the render thread never
-blocks on a slow client. A queue that fills up (a client that stopped reading) drops its
-oldest ``progress`` events first; ``frame``, ``done``, ``error`` and ``cancelled`` are kept.
+blocks on a slow client. A subscription keeps its events in the order they were published. One
+that fills up (a client that stopped reading) drops its oldest ``progress`` event, or failing
+that its oldest ``status`` or ``frame`` event; a terminal event (``done``, ``error``,
+``cancelled``) is never dropped, so every stream can end.
 """
 
 import asyncio
 import json
 import threading
 import time
+from collections import deque
 
 QUEUE_SIZE = 256
 TERMINAL_EVENTS = ("done", "error", "cancelled")
+DROPPABLE = ("progress", "status", "frame")
+"""What a full subscription gives up first: the oldest event of the first kind it holds."""
+
+
+class Subscription:
+    """One client's events, in publication order, at most ``size`` of them (see the module's
+    docstring for what a full one drops). Used on the event loop only."""
+
+    def __init__(self, size: int = QUEUE_SIZE) -> None:
+        self.size = size
+        self.dropped = 0
+        self._events: deque[dict] = deque()
+        self._ready = asyncio.Event()
+
+    def offer(self, event: dict) -> None:
+        if len(self._events) >= self.size:
+            self._drop_oldest()
+        self._events.append(event)
+        self._ready.set()
+
+    def _drop_oldest(self) -> None:
+        for kind in DROPPABLE:
+            for index, old in enumerate(self._events):
+                if old["event"] == kind:
+                    del self._events[index]
+                    self.dropped += 1
+                    return
+
+    async def get(self) -> dict:
+        """The next event, waiting for one."""
+        while not self._events:
+            self._ready.clear()
+            await self._ready.wait()
+        return self._events.popleft()
 
 
 class EventHub:
     def __init__(self) -> None:
-        self._subscribers: dict[str, set[asyncio.Queue]] = {}
+        self._subscribers: dict[str, set[Subscription]] = {}
         self._lock = threading.Lock()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._ids = 0
@@ -25,13 +62,13 @@ class EventHub:
     def bind(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
 
-    def subscribe(self, topic: str) -> asyncio.Queue:
-        queue: asyncio.Queue = asyncio.Queue(QUEUE_SIZE)
+    def subscribe(self, topic: str) -> Subscription:
+        queue = Subscription()
         with self._lock:
             self._subscribers.setdefault(topic, set()).add(queue)
         return queue
 
-    def unsubscribe(self, topic: str, queue: asyncio.Queue) -> None:
+    def unsubscribe(self, topic: str, queue: Subscription) -> None:
         with self._lock:
             subs = self._subscribers.get(topic)
             if subs is not None:
@@ -50,21 +87,9 @@ class EventHub:
         event = {"id": ident, "event": kind, "data": {**data, "time": time.time()}}
         for queue in queues:
             try:
-                loop.call_soon_threadsafe(_offer, queue, event)
+                loop.call_soon_threadsafe(queue.offer, event)
             except RuntimeError:  # the loop closed meanwhile
                 return
-
-
-def _offer(queue: asyncio.Queue, event: dict) -> None:
-    if queue.full():
-        for _ in range(queue.qsize()):  # drop one progress event to make room
-            old = queue.get_nowait()
-            if old["event"] == "progress":
-                break
-            queue.put_nowait(old)
-        else:
-            return
-    queue.put_nowait(event)
 
 
 def sse(event: str, data: dict, ident: int | None = None) -> bytes:
