@@ -36,6 +36,7 @@ import collections
 import concurrent.futures
 import gc
 import logging
+import shutil
 import signal
 import threading
 import time
@@ -47,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from api.cluster_info import frame_report, renice_local_tracers
+from api.errors import ApiError
 from api.events import EventHub
 from api.job_run import JobRun, job_dir
 from api.live_session import LiveSession, encode_jpeg
@@ -472,6 +474,10 @@ class RenderService:
         directory.mkdir(parents=True, exist_ok=True)
         write_atomic(directory / "scene.tls", encode_state(state))
 
+    def drop_job_state(self, job_id: str) -> None:
+        """Remove what :meth:`save_job_state` wrote for a job that was not admitted."""
+        shutil.rmtree(job_dir(self.settings, job_id), ignore_errors=True)
+
     # Queries ---------------------------------------------------------------------------------
 
     def query_call(self, entry: SceneEntry, origin: np.ndarray, direction: np.ndarray):
@@ -493,10 +499,20 @@ class RenderService:
     def open_session(
         self, live: LiveSession, camera: fmt.Camera, target_fps: float, min_blend: float
     ):
-        """On the render thread: make the cluster session and register it."""
+        """On the render thread: make the cluster session and register it, if fewer than
+        ``max_sessions`` are open (counted on the render thread, the table's one writer, so
+        concurrent opens cannot pass the limit together)."""
         factory = self.session_factory()
 
         def create(coordinator):
+            open_count = len(self.live_sessions())
+            if open_count >= self.settings.max_sessions:
+                raise ApiError(
+                    429,
+                    f"{open_count} sessions are open, the most this service allows",
+                    "too_many_sessions",
+                    {"Retry-After": "30"},
+                )
             session = factory(
                 coordinator, live.entry.graph, target_fps=target_fps, min_blend=min_blend
             )

@@ -68,6 +68,14 @@ CREATE TABLE IF NOT EXISTS frames (
 """
 
 
+class QueueFull(Exception):
+    """No room for another job: ``active`` jobs are queued or running."""
+
+    def __init__(self, active: int) -> None:
+        super().__init__(f"{active} jobs are queued or running")
+        self.active = active
+
+
 class Store:
     """SQLite access for the service; every method is thread-safe."""
 
@@ -143,8 +151,18 @@ class Store:
         scene_version: int,
         width: int,
         height: int,
+        max_active: int | None = None,
     ) -> dict:
+        """Record a queued job; with ``max_active``, only while fewer jobs than that are queued
+        or running (counted and added as one step, so concurrent submissions cannot pass the
+        limit together), else :class:`QueueFull`."""
         with self._lock:
+            if max_active is not None:
+                active = self._db.execute(
+                    "SELECT COUNT(*) FROM jobs WHERE status IN ('queued', 'running')"
+                ).fetchone()[0]
+                if active >= max_active:
+                    raise QueueFull(active)
             seq = self._db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs").fetchone()[0]
             self._db.execute(
                 "INSERT INTO jobs (id, seq, scene_id, status, request, created, frames_total, "
@@ -175,12 +193,6 @@ class Store:
         for row in rows:
             row["request"] = json.loads(row["request"])
         return rows
-
-    def count_jobs(self, statuses: tuple[str, ...] | None = None) -> int:
-        if statuses is None:
-            return self._one("SELECT COUNT(*) AS n FROM jobs")["n"]
-        marks = ", ".join("?" * len(statuses))
-        return self._one(f"SELECT COUNT(*) AS n FROM jobs WHERE status IN ({marks})", statuses)["n"]
 
     def unfinished_jobs(self) -> list[dict]:
         rows = self._all("SELECT * FROM jobs WHERE status IN ('queued', 'running') ORDER BY seq")

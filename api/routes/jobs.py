@@ -15,7 +15,7 @@ from api.events import TERMINAL_EVENTS, sse
 from api.job_run import job_dir, job_frames, job_state
 from api.models import FramePublic, JobCreate, JobPublic, JobsPublic, Progress, errors
 from api.scenes import new_id
-from api.store import TERMINAL
+from api.store import TERMINAL, QueueFull
 from cluster.progressive import PARTS
 from tracer.errors import SceneError, format_validation_error
 from tracer.io.images import read_image, write_image
@@ -130,28 +130,30 @@ async def submit_job(body: JobCreate, ctx: Ctx, response: Response) -> JobPublic
     entry = await to_thread.run_sync(ctx.scenes.get, body.scene_id)
     state = entry.graph.state
     _check_limits(ctx, body, state)
-    active = ctx.store.count_jobs(("queued", "running"))
-    if active >= ctx.settings.max_queue:
-        raise ApiError(
-            429,
-            f"the job queue is full ({active} jobs queued or running); try again later",
-            "queue_full",
-            {"Retry-After": "10"},
-        )
     request = body.model_dump(exclude_none=True)
     posed = job_state(state, request)
     frames = job_frames(posed, request)
     job_id = new_id("j")
     await to_thread.run_sync(ctx.service.save_job_state, job_id, state)
-    record = ctx.store.add_job(
-        job_id,
-        body.scene_id,
-        request,
-        len(frames),
-        state.version,
-        posed.camera.width,
-        posed.camera.height,
-    )
+    try:
+        record = ctx.store.add_job(
+            job_id,
+            body.scene_id,
+            request,
+            len(frames),
+            state.version,
+            posed.camera.width,
+            posed.camera.height,
+            max_active=ctx.settings.max_queue,
+        )
+    except QueueFull as full:
+        await to_thread.run_sync(ctx.service.drop_job_state, job_id)
+        raise ApiError(
+            429,
+            f"the job queue is full ({full.active} jobs queued or running); try again later",
+            "queue_full",
+            {"Retry-After": "10"},
+        ) from None
     ctx.metrics.jobs_submitted.inc()
     ctx.service.submit(job_id)
     response.headers["Location"] = f"/v1/jobs/{job_id}"

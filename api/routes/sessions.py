@@ -67,14 +67,6 @@ async def open_session(body: SessionCreate, ctx: Ctx, response: Response) -> Ses
             f"resolution {width}x{height} is over the limit of {s.max_width}x{s.max_height}",
             "limit",
         )
-    open_count = len(ctx.service.live_sessions())
-    if open_count >= s.max_sessions:
-        raise ApiError(
-            429,
-            f"{open_count} sessions are open, the most this service allows",
-            "too_many_sessions",
-            {"Retry-After": "30"},
-        )
     if not ctx.service.ready:
         raise ApiError(503, ctx.service.error or "the cluster is starting", "unavailable")
     camera = _camera(entry.graph.state.camera, body.camera, width, height)

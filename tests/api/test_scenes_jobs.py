@@ -276,6 +276,29 @@ def test_queue_full_is_429(client, settings_of):
     wait_job(client, first.json()["id"])
 
 
+def test_concurrent_submissions_cannot_pass_the_queue_limit(client, settings_of, monkeypatch):
+    """Twelve submissions at once against room for three: exactly three are admitted (the
+    count and the insert are one step), the others get 429 and leave no job directory."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    scene = upload_tiny(client)
+    ctx = client.app.state.ctx
+    monkeypatch.setattr(ctx.service, "submit", lambda job_id: None)  # admitted jobs stay queued
+    active = len(ctx.store.unfinished_jobs())
+    settings_of(client, max_queue=active + 3)
+    body = {"scene_id": scene["id"], "spp": 1, "width": 16, "height": 16}
+    jobs_before = set((client.app.state.settings.data_dir / "jobs").glob("*"))
+    with ThreadPoolExecutor(12) as pool:
+        answers = list(pool.map(lambda _: client.post("/v1/jobs", json=body), range(12)))
+    codes = sorted(r.status_code for r in answers)
+    assert codes == [202] * 3 + [429] * 9, codes
+    admitted = {r.json()["id"] for r in answers if r.status_code == 202}
+    made = {p.name for p in set((client.app.state.settings.data_dir / "jobs").glob("*"))}
+    assert made - {p.name for p in jobs_before} == admitted
+    for job_id in admitted:
+        assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 200
+
+
 def test_cluster_and_balancer(client):
     info = client.get("/v1/cluster").json()
     assert info["ready"] and len(info["tracers"]) == 1

@@ -82,6 +82,36 @@ def test_sessions_limit_and_expiry(client, settings_of):
     assert open_session(client, scene["id"])["id"] != session["id"]
 
 
+def test_concurrent_opens_cannot_pass_the_session_limit(client, settings_of, monkeypatch):
+    """Eight opens at once against room for two, each taking a while to set up: exactly two
+    sessions open (counted on the render thread, the one writer of the sessions table), the
+    others get 429."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    service = client.app.state.ctx.service
+    factory = service.session_factory()
+
+    def slow_factory(*args, **kwargs):
+        time.sleep(0.2)  # a cluster session that takes a while to start
+        return factory(*args, **kwargs)
+
+    monkeypatch.setattr(service, "session_factory", lambda: slow_factory)
+    scene = upload_tiny(client)
+    open_now = client.get("/v1/sessions").json()["count"]
+    settings_of(client, max_sessions=open_now + 2)
+    body = {"scene_id": scene["id"], "width": 48, "height": 32}
+    with ThreadPoolExecutor(8) as pool:
+        answers = list(pool.map(lambda _: client.post("/v1/sessions", json=body), range(8)))
+    codes = sorted(r.status_code for r in answers)
+    assert codes == [201] * 2 + [429] * 6, codes
+    assert all(
+        r.json()["error"]["code"] == "too_many_sessions" for r in answers if r.status_code == 429
+    )
+    for r in answers:
+        if r.status_code == 201:
+            assert client.delete(f"/v1/sessions/{r.json()['id']}").status_code == 204
+
+
 def test_deleting_the_scene_closes_its_sessions(client):
     scene = upload_tiny(client)
     session = open_session(client, scene["id"])
