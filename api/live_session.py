@@ -60,6 +60,40 @@ class LiveSession:
         event, self.event = self.event, asyncio.Event()
         event.set()
 
+    def deliver(self, frame, encoder, loop, quality: int, shows_update: float | None) -> None:
+        """Encode a cluster session's ``frame`` on ``encoder`` (a thread pool, off the render
+        thread) and publish it to the watchers on ``loop``, recording the encode time, the
+        frame time and, for a frame that shows a camera update, its latency."""
+        meta = {
+            "index": int(frame.index),
+            "version": int(frame.version),
+            "spp": int(frame.spp),
+            "width": int(frame.width),
+            "height": int(frame.height),
+            "blend": float(frame.blend),
+            "seconds": round(float(frame.seconds), 5),
+            "samples_accumulated": int(frame.samples_accumulated),
+        }
+        image = frame.image
+
+        def encode() -> None:
+            e0 = time.perf_counter()
+            jpeg = encode_jpeg(image, quality)
+            self.encode_ms.append(round(1000 * (time.perf_counter() - e0), 3))
+            if loop is None or loop.is_closed():
+                return
+
+            def publish() -> None:
+                self.publish(jpeg, meta)
+                now = time.perf_counter()
+                self.frame_times.append(now)
+                if shows_update is not None:
+                    self.latencies.append(round(1000 * (now - shows_update), 3))
+
+            loop.call_soon_threadsafe(publish)
+
+        encoder.submit(encode)
+
     def wake(self) -> None:
         """Runs on the event loop: wake the streams (the session closed)."""
         event, self.event = self.event, asyncio.Event()

@@ -51,7 +51,7 @@ from api.cluster_info import frame_report, renice_local_tracers
 from api.errors import ApiError
 from api.events import EventHub
 from api.job_run import JobRun, job_dir
-from api.live_session import LiveSession, encode_jpeg
+from api.live_session import LiveSession
 from api.scenes import SceneEntry, SceneRepository
 from api.settings import Settings
 from api.store import TERMINAL, Store
@@ -583,37 +583,7 @@ class RenderService:
         live.render_ms.append(round(1000 * (t1 - t0), 3))
         if shows_update is not None and live.camera_update_at == shows_update:
             live.camera_update_at = None
-        meta = {
-            "index": int(frame.index),
-            "version": int(frame.version),
-            "spp": int(frame.spp),
-            "width": int(frame.width),
-            "height": int(frame.height),
-            "blend": float(frame.blend),
-            "seconds": round(float(frame.seconds), 5),
-            "samples_accumulated": int(frame.samples_accumulated),
-        }
-        image = frame.image
-        quality = self.settings.jpeg_quality
-        loop = self.loop
-
-        def encode() -> None:
-            e0 = time.perf_counter()
-            jpeg = encode_jpeg(image, quality)
-            live.encode_ms.append(round(1000 * (time.perf_counter() - e0), 3))
-            if loop is None or loop.is_closed():
-                return
-
-            def publish() -> None:
-                live.publish(jpeg, meta)
-                now = time.perf_counter()
-                live.frame_times.append(now)
-                if shows_update is not None:
-                    live.latencies.append(round(1000 * (now - shows_update), 3))
-
-            loop.call_soon_threadsafe(publish)
-
-        self._encoder.submit(encode)
+        live.deliver(frame, self._encoder, self.loop, self.settings.jpeg_quality, shows_update)
         live.frames += 1
         self._record_frame(getattr(live.session, "last_frame", None), "session")
         if self.metrics is not None and getattr(live.session, "last_frame", None) is None:
