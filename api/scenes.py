@@ -367,7 +367,9 @@ class SceneRepository:
         shutil.rmtree(path, ignore_errors=True)
 
     def create(self, staged: Path, entry: PurePosixPath, name: str, source: str) -> SceneEntry:
-        """Load the scene ``entry`` names inside ``staged/files`` and keep it under a new id."""
+        """Load the scene ``entry`` names inside ``staged/files``, compile it once (so a scene
+        the renderer would refuse is refused now, before anything is kept), and keep it under
+        a new id."""
         files = staged / "files"
         scene_path = _target(files, entry)
         if not scene_path.is_file():
@@ -382,15 +384,17 @@ class SceneRepository:
                 f"{self.settings.max_triangles}",
                 "too_many_triangles",
             )
+        state = dataclasses.replace(state, version=0)
+        described = summary(state)  # compiles it: what the renderer refuses fails here (422)
         scene_id = new_id("s")
         directory = self.root / scene_id
         (staged / "commits").mkdir()
-        state = dataclasses.replace(state, version=0)
         write_atomic(staged / "state.tls", encode_state(state))
         staged.rename(directory)
         self.store.add_scene(scene_id, name, source, str(entry), triangles)
         graph = SceneGraph(state, key=scene_id)
         entry_obj = SceneEntry(scene_id, name, source, directory, graph)
+        entry_obj.summary_cache[state.version] = described
         with self._lock:
             self._entries[scene_id] = entry_obj
         return entry_obj

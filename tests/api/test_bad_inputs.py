@@ -511,3 +511,19 @@ def test_settings_refuse_unsafe_values(tmp_path):
         make_settings(tmp_path, token="short")
     with pytest.raises(ValidationError):
         make_settings(tmp_path, max_queue=0)
+
+
+def test_an_upload_the_renderer_refuses_leaves_no_scene(client):
+    """A scene that loads but that compiling refuses (a cube 1e38 away: float32 cannot hold it)
+    is answered 422 and is not kept: the scene list is as before and no scene directory stays."""
+    from tests.helpers import tiny_scene
+
+    before = {s["id"] for s in client.get("/v1/scenes").json()["data"]}
+    root = client.app.state.settings.data_dir / "scenes"
+    dirs_before = {p.name for p in root.glob("*")}
+    scene = tiny_scene()
+    scene["objects"][1]["transform"]["translate"] = [1e38, 0.5, 0]
+    r = client.post("/v1/scenes", files={"scene": ("scene.json", json.dumps(scene).encode())})
+    assert r.status_code == 422, r.text
+    assert {s["id"] for s in client.get("/v1/scenes").json()["data"]} == before
+    assert {p.name for p in root.glob("*")} == dirs_before
