@@ -341,6 +341,14 @@ def summary(state: SceneState) -> dict:
 # --- The repository --------------------------------------------------------------------------
 
 
+@dataclass
+class Upload:
+    """An upload in progress: its staging directory, and the scene it became once kept."""
+
+    staged: Path
+    scene_id: str | None = None
+
+
 class SceneRepository:
     """Scenes on disk and in memory. Methods that read or write files are blocking: call them
     from a worker thread, never from the event loop."""
@@ -356,20 +364,24 @@ class SceneRepository:
         self._entries: dict[str, SceneEntry] = {}
         self._lock = threading.Lock()
 
-    def staging(self) -> Path:
-        """A fresh directory for an upload in progress (removed by :meth:`discard`)."""
+    def staging(self) -> "Upload":
+        """A fresh upload in progress, with its own staging directory."""
         path = self.tmp / new_id("u")
         path.mkdir()
-        return path
+        return Upload(path)
 
-    @staticmethod
-    def discard(path: Path) -> None:
-        shutil.rmtree(path, ignore_errors=True)
+    def abandon(self, upload: "Upload") -> None:
+        """Undo an upload whose request failed or gave up (a timeout may come after the scene
+        was kept): remove its scene, if it became one, and its staging directory."""
+        if upload.scene_id is not None and self.store.scene(upload.scene_id) is not None:
+            self.delete(upload.scene_id)
+        shutil.rmtree(upload.staged, ignore_errors=True)
 
-    def create(self, staged: Path, entry: PurePosixPath, name: str, source: str) -> SceneEntry:
-        """Load the scene ``entry`` names inside ``staged/files``, compile it once (so a scene
-        the renderer would refuse is refused now, before anything is kept), and keep it under
-        a new id."""
+    def create(self, upload: "Upload", entry: PurePosixPath, name: str, source: str) -> SceneEntry:
+        """Load the scene ``entry`` names inside the upload's ``files``, compile it once (so a
+        scene the renderer would refuse is refused now, before anything is kept), and keep it
+        under a new id."""
+        staged = upload.staged
         files = staged / "files"
         scene_path = _target(files, entry)
         if not scene_path.is_file():
@@ -392,6 +404,7 @@ class SceneRepository:
         write_atomic(staged / "state.tls", encode_state(state))
         staged.rename(directory)
         self.store.add_scene(scene_id, name, source, str(entry), triangles)
+        upload.scene_id = scene_id
         graph = SceneGraph(state, key=scene_id)
         entry_obj = SceneEntry(scene_id, name, source, directory, graph)
         entry_obj.summary_cache[state.version] = described

@@ -204,15 +204,15 @@ def _stem(filename: str | None) -> str | None:
 )
 async def upload_scene(request: Request, ctx: Ctx, response: Response) -> SceneDetail:
     """Upload a scene: a JSON scene with its files, a zip bundle, or one mesh file."""
-    staged = await to_thread.run_sync(ctx.scenes.staging)
-    try:
-        entry_path, name, source = await _stage(request, ctx, staged)
-        entry = await to_thread.run_sync(ctx.scenes.create, staged, entry_path, name[:200], source)
+    upload = await to_thread.run_sync(ctx.scenes.staging)
+    try:  # all or nothing: a request that fails or times out at any point keeps no scene
+        entry_path, name, source = await _stage(request, ctx, upload.staged)
+        entry = await to_thread.run_sync(ctx.scenes.create, upload, entry_path, name[:200], source)
+        response.headers["Location"] = f"/v1/scenes/{entry.id}"
+        return await _detail(ctx, entry)
     except BaseException:
-        await to_thread.run_sync(ctx.scenes.discard, staged)
+        await to_thread.run_sync(ctx.scenes.abandon, upload)
         raise
-    response.headers["Location"] = f"/v1/scenes/{entry.id}"
-    return await _detail(ctx, entry)
 
 
 async def _detail(ctx: Ctx, entry: SceneEntry) -> SceneDetail:

@@ -8,6 +8,7 @@ from fastapi.testclient import TestClient
 
 from tests.api.conftest import (
     animated_scene,
+    app_client,
     make_settings,
     tiny_json,
     upload_tiny,
@@ -516,8 +517,6 @@ def test_settings_refuse_unsafe_values(tmp_path):
 def test_an_upload_the_renderer_refuses_leaves_no_scene(client):
     """A scene that loads but that compiling refuses (a cube 1e38 away: float32 cannot hold it)
     is answered 422 and is not kept: the scene list is as before and no scene directory stays."""
-    from tests.helpers import tiny_scene
-
     before = {s["id"] for s in client.get("/v1/scenes").json()["data"]}
     root = client.app.state.settings.data_dir / "scenes"
     dirs_before = {p.name for p in root.glob("*")}
@@ -527,3 +526,26 @@ def test_an_upload_the_renderer_refuses_leaves_no_scene(client):
     assert r.status_code == 422, r.text
     assert {s["id"] for s in client.get("/v1/scenes").json()["data"]} == before
     assert {p.name for p in root.glob("*")} == dirs_before
+
+
+def test_an_upload_that_times_out_leaves_no_scene(ray_session, tmp_path, monkeypatch):
+    """An upload that outlasts the request timeout after its scene was kept (here while its
+    summary is described) is answered 504 and keeps nothing (it used to stay listed)."""
+    import time
+
+    from api.scenes import SceneRepository
+
+    describe = SceneRepository.summary
+
+    def slow_summary(self, entry):
+        time.sleep(1.0)  # longer than the client may wait
+        return describe(self, entry)
+
+    monkeypatch.setattr(SceneRepository, "summary", slow_summary)
+    with app_client(tmp_path / "data", request_timeout=0.5) as client:
+        r = client.post("/v1/scenes", files={"scene": ("scene.json", tiny_json())})
+        assert r.status_code == 504, r.text
+        time.sleep(1.5)  # past the worker thread's end, whatever it did
+        assert client.get("/v1/scenes").json()["count"] == 0
+        assert not any((tmp_path / "data" / "scenes").glob("*"))
+        assert not any((tmp_path / "data" / "tmp").glob("u*"))
