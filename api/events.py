@@ -26,7 +26,6 @@ class Subscription:
 
     def __init__(self, size: int = QUEUE_SIZE) -> None:
         self.size = size
-        self.dropped = 0
         self._events: deque[dict] = deque()
         self._ready = asyncio.Event()
 
@@ -41,7 +40,6 @@ class Subscription:
             for index, old in enumerate(self._events):
                 if old["event"] == kind:
                     del self._events[index]
-                    self.dropped += 1
                     return
 
     async def get(self) -> dict:
