@@ -8,7 +8,8 @@ log = logging.getLogger("tilerender.api")
 
 
 def frame_report(frame, kind: str) -> dict:
-    """Per-tracer lines, speed and idle time of a coordinator ``Frame`` of a job or session."""
+    """Per-tracer lines, speed and idle time of a coordinator ``Frame`` of a job or session
+    (of a job's turn: its size is the run's view)."""
     lines: dict[str, float] = {}  # in lines: a frame of many tracers hands out spans of them
     for r in frame.ranges:
         lines[r.tracer] = lines.get(r.tracer, 0.0) + frame.units.lines(r.u0, r.u1)
@@ -28,8 +29,8 @@ def frame_report(frame, kind: str) -> dict:
     }
     return {
         "kind": kind,
-        "width": frame.camera.width,
-        "height": frame.camera.height,
+        "width": frame.units.width,
+        "height": frame.units.height,
         "spp": frame.settings.spp,
         "wall_seconds": round(frame.wall_seconds, 6),
         "idle_percent": round(frame.idle_percent, 3),

@@ -1,17 +1,20 @@
 """A job as the render thread renders it: its frames, its scene with the request's overrides,
-and one coordinator frame (a whole frame, or one part of a progressive frame's wave) per step.
+and one bounded turn (``cluster.turns``) per step.
 """
 
 import dataclasses
 import time
+from collections.abc import Generator
 from pathlib import Path
 
 import numpy as np
 
 from api.settings import Settings
 from cluster.jobs import quality_goal, with_overrides
-from cluster.progressive import ProgressiveFrame, progressive_step
+from cluster.progressive import ProgressiveFrame, part_request
 from cluster.scene_graph import SceneGraph
+from cluster.turns import TurnedFrame, TurnSizer, spot_checks_in_turns
+from tracer.accuracy.spot_check import SpotCheck
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 from tracer.scene.model import SceneState
@@ -65,9 +68,22 @@ def job_state(state: SceneState, request: dict) -> SceneState:
 
 
 class JobRun:
-    """A job being rendered by the render thread, one coordinator frame per :meth:`step`."""
+    """A job being rendered by the render thread, one bounded turn per :meth:`step`.
 
-    def __init__(self, record: dict, state: SceneState, done_frames: set[int], settings: Settings):
+    A turn renders one pixel run of a frame (about ``turn_seconds`` of work, the whole frame
+    when it is smaller) or one run of a progressive wave's spot checks. A frame by samples per
+    pixel is one pass, run by run, so its pixels are the command line's bit for bit; a
+    progressive frame's clock counts only this job's turns (not other work in between).
+    """
+
+    def __init__(
+        self,
+        record: dict,
+        state: SceneState,
+        done_frames: set[int],
+        settings: Settings,
+        turn_seconds: float = 0.5,
+    ):
         self.id = record["id"]
         self.record = record
         self.request = record["request"]
@@ -93,53 +109,89 @@ class JobRun:
             self.max_spp,
             len(self.frames),
         )
+        self.sizer = TurnSizer(turn_seconds)
         self.started = time.monotonic()
         self.done_at_start = self.done
-        self.inflight = None
         self.last_frame = None
+        """The coordinator's ``Frame`` of the latest turn (the service records it)."""
         self.progressive: ProgressiveFrame | None = None
         self.current: FrameSpec | None = None
         self.current_started = 0.0
-        self.samples_done = 0
+        """The job's own seconds when the current frame started."""
+        self.part: TurnedFrame | None = None
+        """The frame, or progressive part, being rendered."""
+        self.samples_finished = 0
+        """Samples of every finished frame and part."""
+        self._work: Generator | None = None
 
     @property
     def finished(self) -> bool:
         return not self.todo and self.current is None
 
+    @property
+    def samples_done(self) -> int:
+        part = self.part
+        return self.samples_finished + (0 if part is None else part.samples_done)
+
     def step(self, coordinator) -> tuple[FrameSpec, np.ndarray, dict] | None:
-        """Render one coordinator frame; returns (frame, image, info) when a frame is done."""
-        if self.current is None:
+        """Render one turn; returns (frame, image, info) when that turn finished a frame."""
+        if self._work is None:
             self.current = self.todo[0]
-            self.current_started = time.monotonic()
+            self.current_started = self.sizer.seconds_total
             if self.keyframes:
                 self.graph.frame_commit(self.current.number)
-        spec = self.current
+            self._work = self._frame(coordinator, self.current)
+            next(self._work)  # up to its first turn
+        try:
+            next(self._work)
+            return None
+        except StopIteration as finished:
+            self._work = None
+            return finished.value
+
+    def close(self) -> None:
+        """Stop rendering (a cancel): the turn that ran last was the last."""
+        if self._work is not None:
+            self._work.close()
+            self._work = None
+
+    def _frame(self, coordinator, spec: FrameSpec) -> Generator:
+        """Frame ``spec``'s turns, a yield before each; returns (frame, image, info)."""
         state = self.graph.state
         request = FrameRequest(spec.number, spec.camera or state.camera, state.render)
-
-        def render(request: FrameRequest):
-            self.inflight = coordinator.submit_frame(request, self.graph)
-            try:
-                frame = coordinator.wait_frame(self.inflight)
-            finally:
-                self.inflight = None
-            self.last_frame = frame
-            self.samples_done += request.camera.width * request.camera.height * request.spp
-            return frame
-
+        yield
         if self.goal is None:
-            frame = render(request)
-            return self._complete(spec, frame.rgb, request.spp, None, frame.wall_seconds)
-        # One part of a wave (four independent parts per wave, whose spread estimates the
-        # error of their mean), or a wave's spot checks.
-        p = self.progressive
-        if p is None:
-            camera = request.camera
-            p = self.progressive = ProgressiveFrame(camera.width, camera.height, self.goal)
-        progressive_step(coordinator, p, request, self.graph, render)
-        if not p.done:
-            return None
+            part = yield from self._part(coordinator, request)
+            return self._complete(spec, part.image, request.spp, None, part.seconds)
+        camera = request.camera
+        sizer = self.sizer
+        p = self.progressive = ProgressiveFrame(
+            camera.width, camera.height, self.goal, clock=lambda: sizer.seconds_total
+        )
+        step = p.next_part()
+        while step is not None:
+            if isinstance(step, SpotCheck):
+                checks = spot_checks_in_turns(coordinator, step, request, self.graph, sizer)
+                pixels, parts, work, seconds = yield from checks
+                p.add_spot_checks(pixels, parts, seconds, work)
+            else:
+                part = yield from self._part(coordinator, part_request(request, step))
+                p.add_part(part.image, part.seconds, part.work)
+            step = p.next_part()
+            if step is not None:
+                yield
         return self._complete(spec, p.image, p.spp, p.error, p.elapsed)
+
+    def _part(self, coordinator, request: FrameRequest) -> Generator:
+        """Render ``request`` run by run; returns its :class:`TurnedFrame`."""
+        part = self.part = TurnedFrame(request, self.sizer)
+        yield from part.turns(coordinator, self.graph, self._ran)
+        self.samples_finished += part.samples_done
+        self.part = None
+        return part
+
+    def _ran(self, frame) -> None:
+        self.last_frame = frame
 
     def _complete(self, spec, image, spp, error, seconds):
         self.todo.pop(0)
@@ -151,28 +203,22 @@ class JobRun:
     def progress(self) -> dict:
         """Frames, lines, samples and an ETA, from what the thread has recorded (any thread)."""
         total = len(self.frames)
-        lines_done = 0
-        inflight = self.inflight
-        if inflight is not None:
-            try:
-                lines_done = int(inflight.assembler.done.sum())
-            except AttributeError:  # pragma: no cover - a coordinator without an assembler
-                lines_done = 0
+        part = self.part
+        lines_done = 0 if part is None else part.pixels_done // part.width
         p = self.progressive
         spp_current = p.spp if p is not None else 0
         elapsed = time.monotonic() - self.started
         eta = None
         if self.mode == "spp":
             per_frame = self.width * self.height * self.spp
-            done_work = (
-                self.done - self.done_at_start
-            ) * per_frame + lines_done * self.width * self.spp
-            remaining = (total - self.done) * per_frame - lines_done * self.width * self.spp
+            pixels_done = 0 if part is None else part.pixels_done
+            done_work = (self.done - self.done_at_start) * per_frame + pixels_done * self.spp
+            remaining = (total - self.done) * per_frame - pixels_done * self.spp
             if done_work > 0:
                 eta = elapsed / done_work * max(0, remaining)
         elif self.mode == "time_budget":
-            frame_elapsed = time.monotonic() - self.current_started if self.current else 0.0
-            eta = max(0.0, (total - self.done) * self.goal.time_budget - frame_elapsed)
+            frame_own = self.sizer.seconds_total - self.current_started if self.current else 0.0
+            eta = max(0.0, (total - self.done) * self.goal.time_budget - frame_own)
         elif p is not None and p.waves and p.waves[-1].error and self.done == self.done_at_start:
             target = float(self.request["target_error"])
             wave = p.waves[-1]  # the estimate and the samples it was made at
@@ -184,7 +230,7 @@ class JobRun:
             "frames_done": self.done,
             "frames_total": total,
             "current_frame": None if self.current is None else self.current.number,
-            "lines_done": lines_done if self.mode == "spp" else (self.height if p else 0),
+            "lines_done": lines_done,
             "lines_total": self.height,
             "samples_done": self.samples_done,
             "spp_current_frame": spp_current if self.mode != "spp" else self.spp,

@@ -21,10 +21,15 @@ class Metrics:
         )
         self.jobs = Counter("tilerender_jobs", "Jobs that ended, by status", ["status"], registry=r)
         self.jobs_submitted = Counter("tilerender_jobs_submitted", "Jobs submitted", registry=r)
-        self.frames = Counter("tilerender_frames", "Frames rendered", ["kind"], registry=r)
+        self.frames = Counter(
+            "tilerender_frames",
+            "Coordinator frames rendered (a session's frame, or one turn of a job)",
+            ["kind"],
+            registry=r,
+        )
         self.frame_seconds = Histogram(
             "tilerender_frame_seconds",
-            "Wall time of a rendered frame",
+            "Wall time of a coordinator frame (a session's frame, or one turn of a job)",
             ["kind"],
             buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60, 300),
             registry=r,

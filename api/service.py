@@ -12,12 +12,12 @@ future while the loop serves everyone else.
 **Turns.** Each pass of the thread's loop first runs every queued call, then gives one *turn*
 to the next in a round-robin over the running job (at most one job runs at a time, in
 submission order) and every watched session. A session's turn is one
-``InteractiveSession.render_next()``; a job's turn is one coordinator frame: a whole frame
-for a job by samples per pixel (rendered in one pass, so the result is bit-identical to the
-command line's), or one part of a wave of a progressive frame for a job by target error or
-time budget. So a session waits at most one job frame between two of its own frames, and a job
-advances at least once per round. Sessions nobody watches (no stream client and no request
-for ``session_render_grace`` seconds) are skipped; idle ones expire.
+``InteractiveSession.render_next()``; a job's turn is one bounded run of its current frame
+(``api.job_run``, ``cluster.turns``: about ``job_turn_seconds`` of work, whatever the frame's
+size; its pixels are the same bits as a frame rendered whole, the command line's). So calls,
+cancels and sessions wait at most one such run, and a job advances at least once per round. A
+cancelled job stops after the run in progress. Sessions nobody watches (no stream client and
+no request for ``session_render_grace`` seconds) are skipped; idle ones expire.
 
 **Graphs.** The thread names the graph of whatever it renders next in each coordinator call;
 tracers keep replicas of the few most recently used graphs (by key), so taking turns between
@@ -374,6 +374,11 @@ class RenderService:
             return run.progress()
         return None
 
+    def queue_position(self, job_id: str) -> int | None:
+        """Jobs that start before a queued job (0: it is next), None if it is not queued."""
+        waiting = [j for j in list(self._queue) if j not in self._cancelled]
+        return waiting.index(job_id) if job_id in waiting else None
+
     def _start_next_job(self) -> None:
         while self._queue:
             job_id = self._queue.popleft()
@@ -384,7 +389,7 @@ class RenderService:
             try:
                 state = decode_state((job_dir(self.settings, job_id) / "scene.tls").read_bytes())
                 done = {f["frame"] for f in self.store.frames(job_id)}
-                run = JobRun(record, state, done, self.settings)
+                run = JobRun(record, state, done, self.settings, self.settings.job_turn_seconds)
             except (OSError, SceneError, ValueError) as exc:
                 self._fail(job_id, f"the job cannot start: {exc}")
                 continue
@@ -401,10 +406,15 @@ class RenderService:
                 self._finish_run(run)
             return
 
+    def _drop_run(self, run: JobRun) -> None:
+        """Stop a cancelled job: no further turn renders any of it."""
+        self._cancelled.discard(run.id)
+        run.close()
+        self.run = None
+
     def _job_turn(self, run: JobRun) -> None:
         if run.id in self._cancelled:
-            self._cancelled.discard(run.id)
-            self.run = None
+            self._drop_run(run)
             return
         try:
             result = run.step(self.coordinator)
@@ -417,9 +427,8 @@ class RenderService:
             return
         self._record_frame(run.last_frame, "job")
         run.last_frame = None
-        if run.id in self._cancelled:  # cancelled while this frame rendered: drop it
-            self._cancelled.discard(run.id)
-            self.run = None
+        if run.id in self._cancelled:  # cancelled while this turn rendered: drop the frame
+            self._drop_run(run)
             return
         if result is None:
             self._publish_progress(run)

@@ -71,6 +71,13 @@ class Settings(BaseModel):
     max_sessions: int = Field(default=4, ge=1)
     max_ops: int = Field(default=1000, ge=1, description="operations in one commit")
     request_timeout: float = Field(default=30.0, gt=0, description="seconds; not for streams")
+    job_turn_seconds: float = Field(
+        default=0.5,
+        gt=0,
+        le=10,
+        description="seconds of work in one turn of a job (calls, cancels and sessions wait "
+        "at most about one)",
+    )
 
     # Sessions ------------------------------------------------------------------------------
     session_idle_seconds: float = Field(default=60.0, gt=0)

@@ -33,9 +33,10 @@ class Frame:
     frame: int
     version: int
     rgb: np.ndarray
-    """float32 (H, W, 3), linear radiance."""
+    """float32 (H, W, 3), linear radiance, of the request's view (a region's lines, or its
+    run as one line)."""
     cost: np.ndarray
-    """int64 (H,): work per line."""
+    """int64 (H,): work per line of the view."""
     units: WorkUnits
     """How the frame was cut into work units; ``split`` and ``ranges`` count in units."""
     unit_cost: np.ndarray

@@ -61,8 +61,7 @@ class FrameRunner:
         state = graph.state
         request = request.resolved(state)
         slots = self.fleet.schedulable({c.slot.id for c in self.orphans.values()})
-        camera = request.camera
-        units = WorkUnits.for_tracers(camera.width, camera.height, len(slots))
+        units = WorkUnits.for_tracers(*request.view(), len(slots))
         job = FrameJob(
             request=request,
             graph=graph,

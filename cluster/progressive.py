@@ -263,29 +263,32 @@ class ProgressiveFrame:
         return max(1, spp)
 
 
+def part_request(request: FrameRequest, part: Part) -> FrameRequest:
+    """``request`` (resolved) restricted to ``part``'s samples."""
+    return replace(
+        request,
+        settings=fmt.override(request.settings, spp=part.spp),
+        sample_start=part.sample_start,
+    )
+
+
 def progressive_step(
     coordinator,
     progress: ProgressiveFrame,
     request: FrameRequest,
     graph: SceneGraph | None = None,
-    render: Callable[[FrameRequest], Frame] | None = None,
 ) -> Frame | None:
     """Render what ``progress`` names next for ``request`` (a resolved camera and settings;
     the part sets spp and sample_start) through ``coordinator`` (a ``Coordinator``) and add
-    it. Returns the coordinator's ``Frame`` of a part, None after spot checks. ``render``
-    renders a part's request (default ``coordinator.render_frame`` on ``graph``)."""
+    it. Returns the coordinator's ``Frame`` of a part, None after spot checks."""
     step = progress.next_part()
     start = time.monotonic()
     if isinstance(step, SpotCheck):
         pixels, parts, work = coordinator.render_spot_checks(step, request, graph)
         progress.add_spot_checks(pixels, parts, time.monotonic() - start, work)
         return None
-    part = replace(
-        request,
-        settings=fmt.override(request.settings, spp=step.spp),
-        sample_start=step.sample_start,
-    )
-    done = render(part) if render is not None else coordinator.render_frame(part, graph)
+    part = part_request(request, step)
+    done = coordinator.render_frame(part, graph)
     progress.add_part(done.rgb, time.monotonic() - start, float(done.cost.sum()))
     return done
 

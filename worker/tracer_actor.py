@@ -28,7 +28,7 @@ import os
 import time
 import uuid
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -236,7 +236,8 @@ class Tracer:
             time.sleep(self.delay)
         settings = request.settings or compiled.render
         camera = request.camera or compiled.camera
-        units = WorkUnits(camera.width, camera.height, spans)
+        units = WorkUnits(*replace(request, camera=camera).view(), spans)
+        first = request.first_pixel
         plan = effect_plan(compiled, settings)
         effects = plan.to_json()
 
@@ -244,7 +245,15 @@ class Tracer:
             if b > a:
                 p0, p1 = units.pixels(a, b)
                 out = render_pixels(
-                    compiled, p0, p1, camera, settings, frame, sample_start, self.threads, plan
+                    compiled,
+                    first + p0,
+                    first + p1,
+                    camera,
+                    settings,
+                    frame,
+                    sample_start,
+                    self.threads,
+                    plan,
                 )
                 rgb = out.rgb
                 cost, rays = units.per_unit(a, b, out.cost), units.per_unit(a, b, out.rays)

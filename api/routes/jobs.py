@@ -35,17 +35,21 @@ def _frame_urls(job_id: str, frame: int) -> dict[str, str]:
 
 
 def job_public(ctx: Ctx, record: dict, with_frames: bool = False) -> JobPublic:
+    """A job as the API shows it: its record, its live progress while it runs (else what its
+    finished frames add up to), its place in the queue while queued."""
     live = ctx.service.progress(record["id"])
+    finished = ctx.store.frames(record["id"]) if with_frames or live is None else []
     if live is not None:
         progress = Progress(**live)
     else:
-        done = record["frames_done"]
+        done = record["status"] == "done"
         progress = Progress(
-            frames_done=done,
+            frames_done=record["frames_done"],
             frames_total=record["frames_total"],
             lines_total=record["height"],
-            lines_done=record["height"] if record["status"] == "done" else 0,
-            eta_seconds=0.0 if record["status"] == "done" else None,
+            lines_done=record["height"] if done else 0,
+            samples_done=sum(f["spp"] for f in finished) * record["width"] * record["height"],
+            eta_seconds=0.0 if done else None,
         )
     frames = None
     if with_frames:
@@ -58,9 +62,11 @@ def job_public(ctx: Ctx, record: dict, with_frames: bool = False) -> JobPublic:
                 error_estimate=f["error_estimate"],
                 urls=_frame_urls(record["id"], f["frame"]),
             )
-            for f in ctx.store.frames(record["id"])
+            for f in finished
         ]
     fields = {k: record[k] for k in JobPublic.model_fields if k in record}
+    if record["status"] == "queued":
+        fields["queue_position"] = ctx.service.queue_position(record["id"])
     return JobPublic(**fields, progress=progress, frames=frames)
 
 

@@ -201,6 +201,20 @@ def test_frames_equal_render_image(shared, tracers, balancer):
         assert (frame.failures, frame.duplicates) == (0, 0)
 
 
+@pytest.mark.parametrize("tracers", [1, 2])
+def test_a_region_of_a_frame_is_those_pixels_of_the_whole_frame(shared, tracers):
+    """Whole lines, and a run inside one line, rendered as frames of their own (split among
+    the tracers): the same bits as those pixels of the whole frame."""
+    coordinator = shared(tracers)
+    state = coordinator.graph.state
+    whole = reference(state, 3, 1).reshape(-1, 3)
+    for r0, r1, view in [(0, 5 * 32, (32, 5)), (5 * 32, 24 * 32, (32, 19)), (227, 253, (26, 1))]:
+        frame = coordinator.render_frame(FrameRequest(3, sample_start=1, region=(r0, r1)))
+        assert frame.rgb.shape == (view[1], view[0], 3)
+        assert np.array_equal(frame.rgb.reshape(-1, 3), whole[r0:r1])
+        assert frame.cost.shape == (view[1],) and frame.cost.min() > 0
+
+
 def test_default_is_one_tracer_per_node_with_all_its_cpus(fresh):
     coordinator = fresh(SceneGraph(studio()))
     (tracer,) = coordinator.tracers()
