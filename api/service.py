@@ -13,8 +13,9 @@ future while the loop serves everyone else.
 to the next in a round-robin over the running job (at most one job runs at a time, in
 submission order) and every watched session. A session's turn is one
 ``InteractiveSession.render_next()``; a job's turn is one bounded run of its current frame
-(``api.job_run``, ``cluster.turns``: about ``job_turn_seconds`` of work, whatever the frame's
-size; its pixels are the same bits as a frame rendered whole, the command line's). So calls,
+(``api.job_run``, ``cluster.turns``: about ``job_turn_seconds`` of work, half that while a
+session is watched, whatever the frame's size; its pixels are the same bits as a frame
+rendered whole, the command line's). So calls,
 cancels and sessions wait at most one such run, and a job advances at least once per round. A
 cancelled job stops after the run in progress. Sessions nobody watches (no stream client and
 no request for ``session_render_grace`` seconds) are skipped; idle ones expire.
@@ -307,6 +308,9 @@ class RenderService:
         self._turn = (self._turn + 1) % len(workers)
         worker = workers[self._turn]
         if isinstance(worker, JobRun):
+            # Watched sessions share the thread: the job's turns are halved for their latency.
+            share = 2.0 if len(workers) > 1 else 1.0
+            worker.sizer.seconds = self.settings.job_turn_seconds / share
             self._job_turn(worker)
         else:
             self._session_turn(worker)
