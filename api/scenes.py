@@ -52,8 +52,6 @@ from tracer.scene.ops import Commit
 from tracer.shading.lights import mean_sky_radiance
 
 COMPACT_EVERY = 256
-GROWING_OPS = ("add_mesh", "replace_mesh", "add_node")
-"""Operations that can add triangles: a commit holding one is checked against the limit."""
 CHUNK = 1 << 16
 MAX_NAME = 255
 MAX_PATH = 1024
@@ -444,25 +442,34 @@ class SceneRepository:
         return self.store.scenes()
 
     def commit(self, entry: SceneEntry, ops: list) -> int:
-        """Apply ``ops`` as one commit (all or nothing), persist it; returns the new version."""
+        """Apply ``ops`` as one commit, all or nothing, and persist it; returns the new version.
+
+        The state the commit makes is checked as strictly as an upload before it becomes the
+        scene's version: the triangle limit, then compiled (its summary, kept for the new
+        version), so a state the renderer would refuse (every triangle of a mesh of zero area,
+        an object beyond float32's range) is refused here with 422 and the scene stays as it
+        was. Blocking (compiling takes about a second per million triangles): call it from a
+        worker thread."""
         if len(ops) > self.settings.max_ops:
             raise ApiError(
                 422, f"a commit may hold at most {self.settings.max_ops} operations", "too_many_ops"
             )
-        from tracer.scene.ops import apply_ops, parse_ops
+        from tracer.scene.ops import apply_commit, parse_ops
 
         parsed = parse_ops(ops)  # SceneError -> 422
         with entry.lock:
-            if any(op.op in GROWING_OPS for op in parsed):  # a dry run for the triangle limit
-                triangles = count_triangles(apply_ops(entry.graph.state, parsed))
-                if triangles > self.settings.max_triangles:
-                    raise ApiError(
-                        422,
-                        f"after this commit the scene would have {triangles} triangles, more "
-                        f"than the limit of {self.settings.max_triangles}",
-                        "too_many_triangles",
-                    )
-            commit = entry.graph.commit(parsed)  # SceneError -> 422, nothing changed
+            state = entry.graph.state
+            candidate = apply_commit(state, Commit(state.version + 1, parsed))  # SceneError -> 422
+            triangles = count_triangles(candidate)
+            if triangles > self.settings.max_triangles:
+                raise ApiError(
+                    422,
+                    f"after this commit the scene would have {triangles} triangles, more "
+                    f"than the limit of {self.settings.max_triangles}",
+                    "too_many_triangles",
+                )
+            described = summary(candidate)  # compiles it: what the renderer refuses fails here
+            commit = entry.graph.commit(parsed)  # the same ops on the same state: it applies
             version = commit.version
             write_atomic(
                 entry.directory / "commits" / f"{version}.tlc",
@@ -471,8 +478,9 @@ class SceneRepository:
             entry.commits_since_compaction += 1
             if entry.commits_since_compaction >= COMPACT_EVERY:
                 self._compact(entry)
-            self.store.set_scene_version(entry.id, version, count_triangles(entry.graph.state))
+            self.store.set_scene_version(entry.id, version, triangles)
             entry.summary_cache.clear()
+            entry.summary_cache[version] = described
         return version
 
     def _compact(self, entry: SceneEntry) -> None:
