@@ -78,7 +78,11 @@ def _public(record: dict) -> ScenePublic:
 
 async def _save_upload(upload: UploadFile, target: Path) -> None:
     def copy() -> None:
-        target.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+        except OSError:  # an uploaded file is where this one needs a folder
+            message = f"{target.name}: another file is in its way"
+            raise ApiError(422, message, "bad_upload") from None
         try:
             with open(target, "xb") as out:
                 upload.file.seek(0)
@@ -214,6 +218,9 @@ async def upload_scene(request: Request, ctx: Ctx, response: Response) -> SceneD
         entry = await to_thread.run_sync(ctx.scenes.create, upload, entry_path, name[:200], source)
         response.headers["Location"] = f"/v1/scenes/{entry.id}"
         return await _detail(ctx, entry)
+    except (ApiError, SceneError) as exc:  # named with the upload's own paths, no server path
+        await to_thread.run_sync(ctx.scenes.abandon, upload)
+        raise ctx.scenes.client_error(exc, upload) from None
     except BaseException:
         await to_thread.run_sync(ctx.scenes.abandon, upload)
         raise

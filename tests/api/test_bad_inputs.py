@@ -600,3 +600,19 @@ def test_a_query_never_answers_with_a_raw_ray_error(client, monkeypatch):
         r = client.post(f"/v1/scenes/{scene['id']}/query", json={"x": 6, "y": 4})
         check(r, status, word)
         assert not any(s in r.text for s in ("4242", "10.9.8.7", "ray::", "pid=")), r.text
+
+
+def test_upload_errors_name_no_server_path(client):
+    """Upload errors name only what the client sent: a scene that is not JSON is named by its
+    path in the upload (it was named by its server path, under the data directory), and a
+    bundle entry that a file is in the way of is a 422 (it was a 500)."""
+    data_dir = client.app.state.settings.data_dir
+    clash = zip_bytes({"scene.json": tiny_json(), "a": b"x", "a/b.txt": b"y"})
+    cases = (
+        ({"scene": ("s.json", b"{not json")}, "scene.json: not valid JSON"),
+        ({"bundle": ("b.zip", clash)}, "'a/b.txt': a file of the bundle is in its way"),
+    )
+    for files, words in cases:
+        r = client.post("/v1/scenes", files=files)
+        check(r, 422, words)
+        assert str(data_dir) not in r.text and str(data_dir.resolve()) not in r.text, r.text
