@@ -20,13 +20,13 @@ scene's directory, and name regular files: absolute paths, drive letters, ``..``
 backslashes, NUL bytes, links, devices, duplicates and encrypted entries are refused, and so
 are bundles whose entries unpack to more than ``max_unpacked_bytes``, more than
 ``max_bundle_files`` entries, or an entry compressed more than ``max_compression_ratio``
-times (a zip bomb). Bytes are counted while extracting, not taken from the headers. glTF
-buffer and image URIs, OBJ ``mtllib`` and MTL texture references are checked the same way
-before any loader reads them, so a scene can reference only files inside its upload.
+times (a zip bomb). Bytes are counted while extracting, not taken from the headers. The
+files its meshes reference (glTF and GLB URIs, OBJ ``mtllib``, MTL ``map_Kd``, PLY
+``TextureFile``, read as trimesh reads them) are checked the same way before any loader reads
+them, so a scene can reference only files inside its upload (``api.upload_paths``).
 """
 
 import dataclasses
-import json
 import re
 import secrets
 import shutil
@@ -41,6 +41,7 @@ import numpy as np
 from api.errors import ApiError
 from api.settings import Settings
 from api.store import Store
+from api.upload_paths import check_references, client_message, inside, safe_relative
 from cluster.scene_graph import SceneGraph
 from tracer.errors import SceneError
 from tracer.io.files import write_atomic
@@ -52,13 +53,7 @@ from tracer.scene.ops import Commit
 from tracer.shading.lights import mean_sky_radiance
 
 COMPACT_EVERY = 256
-GROWING_OPS = ("add_mesh", "replace_mesh", "add_node")
-"""Operations that can add triangles: a commit holding one is checked against the limit."""
 CHUNK = 1 << 16
-MAX_NAME = 255
-MAX_PATH = 1024
-
-_DRIVE = re.compile(r"^[A-Za-z]:")
 
 
 @dataclass(eq=False)
@@ -83,37 +78,7 @@ def new_id(prefix: str) -> str:
     return prefix + secrets.token_hex(6)
 
 
-# --- Paths inside uploads ------------------------------------------------------------------
-
-
-def safe_relative(name: str, what: str = "file") -> PurePosixPath:
-    """``name`` as a relative path that stays inside its directory; ApiError 422 otherwise."""
-    if not isinstance(name, str) or not name.strip():
-        raise ApiError(422, f"{what}: an empty file name", "unsafe_path")
-    if "\x00" in name or any(ord(c) < 32 for c in name):
-        raise ApiError(422, f"{what} {name!r}: control characters in a file name", "unsafe_path")
-    if "\\" in name:
-        raise ApiError(422, f"{what} {name!r}: backslashes are not allowed in paths", "unsafe_path")
-    if name.startswith("/") or _DRIVE.match(name):
-        raise ApiError(422, f"{what} {name!r}: absolute paths are not allowed", "unsafe_path")
-    if len(name) > MAX_PATH:
-        raise ApiError(422, f"{what}: a path longer than {MAX_PATH} characters", "unsafe_path")
-    path = PurePosixPath(name)
-    parts = [p for p in path.parts if p not in ("", ".")]
-    if not parts:
-        raise ApiError(422, f"{what} {name!r}: not a file name", "unsafe_path")
-    if ".." in parts:
-        raise ApiError(422, f"{what} {name!r}: '..' may not appear in paths", "unsafe_path")
-    if any(len(p) > MAX_NAME for p in parts):
-        raise ApiError(422, f"{what} {name!r}: a path component is too long", "unsafe_path")
-    return PurePosixPath(*parts)
-
-
-def _target(root: Path, relative: PurePosixPath) -> Path:
-    target = (root / Path(*relative.parts)).resolve()
-    if not target.is_relative_to(root.resolve()):
-        raise ApiError(422, f"{relative}: leaves the scene's directory", "unsafe_path")
-    return target
+# --- Bundles -------------------------------------------------------------------------------
 
 
 def extract_bundle(archive: Path, root: Path, settings: Settings) -> list[str]:
@@ -156,9 +121,14 @@ def extract_bundle(archive: Path, root: Path, settings: Settings) -> list[str]:
             if key in seen:
                 raise ApiError(422, f"bundle entry {name!r}: appears twice", "bad_bundle")
             seen.add(key)
-            target = _target(root, relative)
+            target = inside(root, relative)
+            try:
+                (target if info.is_dir() else target.parent).mkdir(parents=True, exist_ok=True)
+            except OSError:  # an earlier entry is a file where this one needs a folder
+                raise ApiError(
+                    422, f"bundle entry {name!r}: a file of the bundle is in its way", "bad_bundle"
+                ) from None
             if info.is_dir():
-                target.mkdir(parents=True, exist_ok=True)
                 continue
             if info.file_size > CHUNK and info.file_size > settings.max_compression_ratio * max(
                 info.compress_size, 1
@@ -170,7 +140,6 @@ def extract_bundle(archive: Path, root: Path, settings: Settings) -> list[str]:
                     f"{settings.max_compression_ratio:g}): refused as a zip bomb",
                     "zip_bomb",
                 )
-            target.parent.mkdir(parents=True, exist_ok=True)
             written = 0
             try:
                 with bundle.open(info) as src, open(target, "xb") as dst:
@@ -200,44 +169,6 @@ def extract_bundle(archive: Path, root: Path, settings: Settings) -> list[str]:
     if not names:
         raise ApiError(422, "the bundle contains no files", "bad_bundle")
     return names
-
-
-def _check_reference(root: Path, base: Path, reference: str, where: str) -> None:
-    if reference.startswith("data:"):
-        return
-    from urllib.parse import unquote
-
-    relative = safe_relative(unquote(reference), where)
-    target = _target(root, PurePosixPath(*(base.relative_to(root).parts + relative.parts)))
-    if not target.is_file():
-        raise ApiError(422, f"{where} {reference!r}: no such file in the upload", "missing_file")
-
-
-def check_references(root: Path) -> None:
-    """Refuse glTF, OBJ and MTL files that point outside ``root`` (module docstring)."""
-    for path in sorted(p for p in root.rglob("*") if p.is_file()):
-        suffix = path.suffix.lower()
-        name = str(path.relative_to(root))
-        if suffix == ".gltf":
-            try:
-                doc = json.loads(path.read_text(encoding="utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
-                raise ApiError(422, f"{name}: not valid glTF JSON", "invalid_scene") from None
-            if not isinstance(doc, dict):
-                raise ApiError(422, f"{name}: not valid glTF JSON", "invalid_scene")
-            for section in ("buffers", "images"):
-                for item in doc.get(section) or []:
-                    if isinstance(item, dict) and isinstance(item.get("uri"), str):
-                        _check_reference(root, path.parent, item["uri"], f"{name}: {section} uri")
-        elif suffix in (".obj", ".mtl"):
-            with open(path, "rb") as f:
-                for raw in f:
-                    line = raw.decode("utf-8", "replace").strip()
-                    keyword, _, rest = line.partition(" ")
-                    if keyword == "mtllib" or (suffix == ".mtl" and keyword.startswith("map_")):
-                        for ref in rest.split():
-                            if not ref.startswith("-"):
-                                _check_reference(root, path.parent, ref, f"{name}: {keyword}")
 
 
 def find_entry(root: Path, names: list[str]) -> PurePosixPath:
@@ -377,13 +308,23 @@ class SceneRepository:
             self.delete(upload.scene_id)
         shutil.rmtree(upload.staged, ignore_errors=True)
 
+    def client_error(self, error: ApiError | SceneError, upload: "Upload") -> ApiError:
+        """``error`` as the client may see it: paths in the upload named relative to it, no
+        other path of the data directory (``api.upload_paths.client_message``)."""
+        files = upload.staged / "files"
+        if isinstance(error, ApiError):
+            message = client_message(error.message, self.settings.data_dir, files)
+            return ApiError(error.status, message, error.code, error.headers)
+        first = str(error).partition("\n")[0] or "invalid scene"
+        return ApiError(422, client_message(first, self.settings.data_dir, files), "invalid_scene")
+
     def create(self, upload: "Upload", entry: PurePosixPath, name: str, source: str) -> SceneEntry:
         """Load the scene ``entry`` names inside the upload's ``files``, compile it once (so a
         scene the renderer would refuse is refused now, before anything is kept), and keep it
         under a new id."""
         staged = upload.staged
         files = staged / "files"
-        scene_path = _target(files, entry)
+        scene_path = inside(files, entry)
         if not scene_path.is_file():
             raise ApiError(422, f"{entry}: no such file in the upload", "missing_file")
         check_references(files)
@@ -432,8 +373,9 @@ class SceneRepository:
 
                 state = apply_commit(state, commit)
         except (OSError, SceneError, ValueError) as exc:
+            reason = client_message(str(exc), self.settings.data_dir)
             raise ApiError(
-                500, f"scene {scene_id} cannot be restored: {exc}", "corrupt_scene"
+                500, f"scene {scene_id} cannot be restored: {reason}", "corrupt_scene"
             ) from None
         graph = SceneGraph(state, key=scene_id)
         entry = SceneEntry(scene_id, record["name"], record["source"], directory, graph)
@@ -444,25 +386,34 @@ class SceneRepository:
         return self.store.scenes()
 
     def commit(self, entry: SceneEntry, ops: list) -> int:
-        """Apply ``ops`` as one commit (all or nothing), persist it; returns the new version."""
+        """Apply ``ops`` as one commit, all or nothing, and persist it; returns the new version.
+
+        The state the commit makes is checked as strictly as an upload before it becomes the
+        scene's version: the triangle limit, then compiled (its summary, kept for the new
+        version), so a state the renderer would refuse (every triangle of a mesh of zero area,
+        an object beyond float32's range) is refused here with 422 and the scene stays as it
+        was. Blocking (compiling takes about a second per million triangles): call it from a
+        worker thread."""
         if len(ops) > self.settings.max_ops:
             raise ApiError(
                 422, f"a commit may hold at most {self.settings.max_ops} operations", "too_many_ops"
             )
-        from tracer.scene.ops import apply_ops, parse_ops
+        from tracer.scene.ops import apply_commit, parse_ops
 
         parsed = parse_ops(ops)  # SceneError -> 422
         with entry.lock:
-            if any(op.op in GROWING_OPS for op in parsed):  # a dry run for the triangle limit
-                triangles = count_triangles(apply_ops(entry.graph.state, parsed))
-                if triangles > self.settings.max_triangles:
-                    raise ApiError(
-                        422,
-                        f"after this commit the scene would have {triangles} triangles, more "
-                        f"than the limit of {self.settings.max_triangles}",
-                        "too_many_triangles",
-                    )
-            commit = entry.graph.commit(parsed)  # SceneError -> 422, nothing changed
+            state = entry.graph.state
+            candidate = apply_commit(state, Commit(state.version + 1, parsed))  # SceneError -> 422
+            triangles = count_triangles(candidate)
+            if triangles > self.settings.max_triangles:
+                raise ApiError(
+                    422,
+                    f"after this commit the scene would have {triangles} triangles, more "
+                    f"than the limit of {self.settings.max_triangles}",
+                    "too_many_triangles",
+                )
+            described = summary(candidate)  # compiles it: what the renderer refuses fails here
+            commit = entry.graph.commit(parsed)  # the same ops on the same state: it applies
             version = commit.version
             write_atomic(
                 entry.directory / "commits" / f"{version}.tlc",
@@ -471,8 +422,9 @@ class SceneRepository:
             entry.commits_since_compaction += 1
             if entry.commits_since_compaction >= COMPACT_EVERY:
                 self._compact(entry)
-            self.store.set_scene_version(entry.id, version, count_triangles(entry.graph.state))
+            self.store.set_scene_version(entry.id, version, triangles)
             entry.summary_cache.clear()
+            entry.summary_cache[version] = described
         return version
 
     def _compact(self, entry: SceneEntry) -> None:

@@ -1,5 +1,6 @@
 """Scenes: upload, list, inspect, delete, commit operations, ray queries."""
 
+import logging
 import math
 import shutil
 from pathlib import Path, PurePosixPath
@@ -7,6 +8,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 from anyio import to_thread
 from fastapi import APIRouter, Request, Response
+from ray.exceptions import RayError
 from starlette.datastructures import UploadFile
 
 from api.deps import Ctx
@@ -22,10 +24,12 @@ from api.models import (
     errors,
 )
 from api.scenes import SceneEntry, extract_bundle, find_entry, safe_relative
+from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
 from tracer.scene.loader import MESH_SUFFIXES
 
+log = logging.getLogger("tilerender.api")
 router = APIRouter(prefix="/scenes", tags=["scenes"])
 
 UPLOAD_SCHEMA = {
@@ -74,7 +78,11 @@ def _public(record: dict) -> ScenePublic:
 
 async def _save_upload(upload: UploadFile, target: Path) -> None:
     def copy() -> None:
-        target.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+        except OSError:  # an uploaded file is where this one needs a folder
+            message = f"{target.name}: another file is in its way"
+            raise ApiError(422, message, "bad_upload") from None
         try:
             with open(target, "xb") as out:
                 upload.file.seek(0)
@@ -210,6 +218,9 @@ async def upload_scene(request: Request, ctx: Ctx, response: Response) -> SceneD
         entry = await to_thread.run_sync(ctx.scenes.create, upload, entry_path, name[:200], source)
         response.headers["Location"] = f"/v1/scenes/{entry.id}"
         return await _detail(ctx, entry)
+    except (ApiError, SceneError) as exc:  # named with the upload's own paths, no server path
+        await to_thread.run_sync(ctx.scenes.abandon, upload)
+        raise ctx.scenes.client_error(exc, upload) from None
     except BaseException:
         await to_thread.run_sync(ctx.scenes.abandon, upload)
         raise
@@ -281,6 +292,20 @@ def pixel_ray(camera: fmt.Camera, x: float, y: float, width: int, height: int):
     return position, portable.normalized(direction)
 
 
+def tracer_failure(error: RayError) -> ApiError:
+    """A clean answer for a tracer call that failed: the tracer's own one-line reason when it
+    refused the scene (a SceneError), 504 for a call that timed out, else 503. Ray's text (the
+    actor's id, pid and node IP) goes to the server's log only."""
+    if isinstance(error, TimeoutError):
+        return ApiError(504, "the cluster did not answer in time; try again", "timeout")
+    cause = getattr(error, "cause", None)
+    if isinstance(cause, SceneError):
+        reason = str(cause).splitlines()[0] if str(cause) else "invalid scene"
+        return ApiError(422, f"the tracer cannot render this scene: {reason}", "invalid_scene")
+    log.warning("a tracer call failed: %s", error)
+    return ApiError(503, "the cluster could not answer: a tracer failed", "unavailable")
+
+
 @router.post("/{scene_id}/query", response_model=QueryHit, responses=errors(503, 504))
 async def query_scene(scene_id: str, body: QueryRequest, ctx: Ctx) -> QueryHit:
     """Trace one ray (or the ray through a pixel) at the scene's current version (picking)."""
@@ -304,6 +329,8 @@ async def query_scene(scene_id: str, body: QueryRequest, ctx: Ctx) -> QueryHit:
         version, hits = await ctx.service.call_async(
             ctx.service.query_call(entry, origin, direction), timeout=ctx.settings.request_timeout
         )
+    except RayError as exc:  # checked first: Ray's errors may also derive from their cause's type
+        raise tracer_failure(exc) from None
     except RuntimeError as exc:  # ClusterError: no tracer could answer
         raise ApiError(503, f"the cluster could not answer: {exc}", "unavailable") from None
     out = QueryHit(

@@ -549,3 +549,70 @@ def test_an_upload_that_times_out_leaves_no_scene(ray_session, tmp_path, monkeyp
         assert client.get("/v1/scenes").json()["count"] == 0
         assert not any((tmp_path / "data" / "scenes").glob("*"))
         assert not any((tmp_path / "data" / "tmp").glob("u*"))
+
+
+def test_a_commit_the_renderer_refuses_changes_nothing(client):
+    """Commits are checked as strictly as uploads: one that flattens every triangle of the scene
+    (update_vertices) or moves the cube 1e38 away (set_transform) is answered 422 and leaves the
+    scene exactly as it was (both used to answer 200, then GET 422 and jobs failed); a job on the
+    scene afterwards renders."""
+    scene = upload_tiny(client)
+    path = f"/v1/scenes/{scene['id']}"
+    before = client.get(path).json()
+    entry = client.app.state.ctx.scenes.get(scene["id"])
+    state = entry.graph.state
+    flatten = [
+        {"op": "update_vertices", "mesh": name, "vertices": [[0.0, 0.0, 0.0]] * len(mesh.vertices)}
+        for name, mesh in state.meshes.items()
+    ]
+    far = [{"op": "set_transform", "node": "cube", "transform": {"translate": [1e38, 0.5, 0]}}]
+    for ops, word in ((flatten, "zero area"), (far, "float32")):
+        check(client.post(f"{path}/commits", json={"ops": ops}), 422, word)
+        assert entry.graph.state is state
+        assert client.get(path).json() == before
+    assert not any((entry.directory / "commits").iterdir())
+    job = client.post("/v1/jobs", json={"scene_id": scene["id"], "spp": 1}).json()
+    assert wait_job(client, job["id"])["status"] == "done"
+
+
+def test_a_query_never_answers_with_a_raw_ray_error(client, monkeypatch):
+    """A tracer that fails a ray query is answered cleanly: its own reason for a scene it
+    refuses (422), else 503; never Ray's text naming the actor, its pid and node IP (a refusal
+    used to come back as 422 "ray::...query() (pid=..., ip=...)")."""
+    from ray.exceptions import RayTaskError
+
+    from tracer.errors import SceneError
+
+    scene = upload_tiny(client)
+    service = client.app.state.ctx.service
+    for cause, status, word in (
+        (SceneError("mesh 'cube': every triangle has zero area"), 422, "zero area"),
+        (RuntimeError("numba crashed"), 503, "tracer failed"),
+    ):
+        error = RayTaskError(
+            "TracerActor.query", "Traceback ...", cause, "ray::TracerActor.query", 4242, "10.9.8.7"
+        ).as_instanceof_cause()
+
+        def failing(_coordinator, error=error):
+            raise error
+
+        monkeypatch.setattr(service, "query_call", lambda *_args, failing=failing: failing)
+        r = client.post(f"/v1/scenes/{scene['id']}/query", json={"x": 6, "y": 4})
+        check(r, status, word)
+        assert not any(s in r.text for s in ("4242", "10.9.8.7", "ray::", "pid=")), r.text
+
+
+def test_upload_errors_name_no_server_path(client):
+    """Upload errors name only what the client sent: a scene that is not JSON is named by its
+    path in the upload (it was named by its server path, under the data directory), and a
+    bundle entry that a file is in the way of is a 422 (it was a 500)."""
+    data_dir = client.app.state.settings.data_dir
+    clash = zip_bytes({"scene.json": tiny_json(), "a": b"x", "a/b.txt": b"y"})
+    cases = (
+        ({"scene": ("s.json", b"{not json")}, "scene.json: not valid JSON"),
+        ({"bundle": ("b.zip", clash)}, "'a/b.txt': a file of the bundle is in its way"),
+    )
+    for files, words in cases:
+        r = client.post("/v1/scenes", files=files)
+        check(r, 422, words)
+        assert str(data_dir) not in r.text and str(data_dir.resolve()) not in r.text, r.text
