@@ -9,7 +9,7 @@ from anyio import to_thread
 from fastapi import APIRouter, Request, Response
 from starlette.datastructures import UploadFile
 
-from api.deps import Ctx
+from api.deps import Ctx, ThreadedBodyRoute
 from api.errors import ApiError
 from api.models import (
     CommitPublic,
@@ -26,7 +26,7 @@ from tracer.maths import portable
 from tracer.scene import format as fmt
 from tracer.scene.loader import MESH_SUFFIXES
 
-router = APIRouter(prefix="/scenes", tags=["scenes"])
+router = APIRouter(prefix="/scenes", tags=["scenes"], route_class=ThreadedBodyRoute)
 
 UPLOAD_SCHEMA = {
     "requestBody": {
@@ -254,13 +254,13 @@ async def _commit(scene_id: str, body: CommitRequest, ctx: Ctx) -> CommitPublic:
     return CommitPublic(scene_id=scene_id, version=version)
 
 
-@router.post("/{scene_id}/commits", response_model=CommitPublic, responses=errors())
+@router.post("/{scene_id}/commits", response_model=CommitPublic, responses=errors(400))
 async def commit_ops(scene_id: str, body: CommitRequest, ctx: Ctx) -> CommitPublic:
     """Apply operations as one commit (all or nothing); returns the new version."""
     return await _commit(scene_id, body, ctx)
 
 
-@router.patch("/{scene_id}", response_model=CommitPublic, responses=errors())
+@router.patch("/{scene_id}", response_model=CommitPublic, responses=errors(400))
 async def patch_scene(scene_id: str, body: CommitRequest, ctx: Ctx) -> CommitPublic:
     """Same as POST /scenes/{id}/commits."""
     return await _commit(scene_id, body, ctx)
@@ -281,7 +281,7 @@ def pixel_ray(camera: fmt.Camera, x: float, y: float, width: int, height: int):
     return position, portable.normalized(direction)
 
 
-@router.post("/{scene_id}/query", response_model=QueryHit, responses=errors(503, 504))
+@router.post("/{scene_id}/query", response_model=QueryHit, responses=errors(400, 503, 504))
 async def query_scene(scene_id: str, body: QueryRequest, ctx: Ctx) -> QueryHit:
     """Trace one ray (or the ray through a pixel) at the scene's current version (picking)."""
     entry = await get_entry(ctx, scene_id)
