@@ -6,20 +6,21 @@ and closes them in reverse order. Nothing connects at import.
 """
 
 import asyncio
+import copy
 import logging
+from collections.abc import Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import APIRouter, Depends, FastAPI
-from fastapi.middleware.cors import CORSMiddleware
+from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from api import errors
-from api.deps import Context, require_token
+from api.deps import Context
 from api.events import EventHub
 from api.metrics import Metrics
-from api.middleware import BodyLimit, RequestMetrics, Timeout
+from api.middleware import BearerAuth, BodyLimit, JSONCORSMiddleware, RequestMetrics, Timeout
 from api.routes import cluster, health, jobs, scenes, sessions
 from api.scenes import SceneRepository
 from api.service import RenderService
@@ -36,6 +37,36 @@ With a token configured, every `/v1` request needs `Authorization: Bearer <token
 """
 
 log = logging.getLogger("tilerender.api")
+
+SECURITY_SCHEMES = {
+    "bearer": {"type": "http", "scheme": "bearer", "description": "the service's token"},
+    "access_token": {
+        "type": "apiKey",
+        "in": "query",
+        "name": "access_token",
+        "description": "the token as a query parameter (for an <img> or EventSource)",
+    },
+}
+
+
+def openapi_with_security(app: FastAPI, settings: Settings) -> Callable[[], dict]:
+    """``app.openapi`` that declares the bearer token on the /v1 operations only while the
+    service has a token (the settings are read at each call; the base document is cached)."""
+    base = app.openapi
+
+    def openapi() -> dict:
+        doc = base()
+        if not settings.token:
+            return doc
+        doc = copy.deepcopy(doc)
+        doc.setdefault("components", {})["securitySchemes"] = SECURITY_SCHEMES
+        for path, operations in doc["paths"].items():
+            if path.startswith("/v1/") or path == "/v1":
+                for operation in operations.values():
+                    operation["security"] = [{name: []} for name in SECURITY_SCHEMES]
+        return doc
+
+    return openapi
 
 
 def create_app(settings: Settings | None = None, session_factory=None) -> FastAPI:
@@ -72,7 +103,9 @@ def create_app(settings: Settings | None = None, session_factory=None) -> FastAP
     app.state.settings = settings
     errors.install(app)
 
-    v1 = APIRouter(prefix="/v1", dependencies=[Depends(require_token)])
+    app.openapi = openapi_with_security(app, settings)
+
+    v1 = APIRouter(prefix="/v1")
     for module in (scenes, jobs, sessions, cluster):
         v1.include_router(module.router)
     app.include_router(v1)
@@ -84,12 +117,14 @@ def create_app(settings: Settings | None = None, session_factory=None) -> FastAP
 
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 
-    # Outermost last: metrics see every answer, the body limit runs before any parsing.
+    # Outermost last: metrics see every answer, CORS answers preflights, the token is checked
+    # before anything reads the body, the body limit runs before any parsing.
     app.add_middleware(Timeout, seconds=settings.request_timeout)
     app.add_middleware(BodyLimit, settings=settings)
+    app.add_middleware(BearerAuth, settings=settings)
     if settings.cors_origins:
         app.add_middleware(
-            CORSMiddleware,
+            JSONCORSMiddleware,
             allow_origins=settings.cors_origins,
             allow_methods=["*"],
             allow_headers=["Authorization", "Content-Type"],

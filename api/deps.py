@@ -1,11 +1,15 @@
-"""Dependencies of the routes: the app's context and bearer-token auth."""
+"""What the routes share: the app's context and their route class (JSON bodies parsed in a
+worker thread)."""
 
-import hmac
+import json
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Any
 
-from fastapi import Depends, Request
-from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from anyio import to_thread
+from fastapi import Depends, Request, Response
+from fastapi.routing import APIRoute
+from starlette.exceptions import HTTPException
 
 from api.errors import ApiError
 from api.events import EventHub
@@ -37,36 +41,33 @@ def get_context(request: Request) -> Context:
 
 Ctx = Annotated[Context, Depends(get_context)]
 
-_bearer = HTTPBearer(auto_error=False, description="the service's token, if it has one")
+
+def parse_json(body: bytes) -> Any:
+    """``body`` as JSON; HTTPException 400 for bytes that are not text or nest too deeply (a
+    malformed document raises JSONDecodeError, which FastAPI answers with 422)."""
+    try:
+        return json.loads(body)
+    except UnicodeDecodeError:
+        raise HTTPException(400, "the request body is not UTF-8 text") from None
+    except RecursionError:
+        raise HTTPException(400, "the request body's JSON nests too deeply") from None
 
 
-def require_token(
-    request: Request,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-) -> None:
-    """With a token configured, every /v1 request needs ``Authorization: Bearer <token>``
-    (or ``?access_token=<token>``, for an ``<img>`` or ``EventSource`` that cannot set
-    headers): missing -> 401, wrong -> 403."""
-    token = request.app.state.settings.token
-    if not token:
-        return
-    supplied = None
-    header = request.headers.get("authorization")
-    if header is not None:
-        scheme, _, value = header.partition(" ")
-        if scheme.lower() != "bearer" or not value.strip():
-            raise ApiError(
-                401,
-                "the Authorization header must be 'Bearer <token>'",
-                "unauthorized",
-                {"WWW-Authenticate": "Bearer"},
-            )
-        supplied = value.strip()
-    else:
-        supplied = request.query_params.get("access_token")
-    if not supplied:
-        raise ApiError(
-            401, "this service needs a bearer token", "unauthorized", {"WWW-Authenticate": "Bearer"}
-        )
-    if not hmac.compare_digest(supplied.encode(), token.encode()):
-        raise ApiError(403, "the bearer token is not valid", "forbidden")
+class _ThreadedJSONRequest(Request):
+    async def json(self) -> Any:
+        if not hasattr(self, "_json"):
+            self._json = await to_thread.run_sync(parse_json, await self.body())
+        return self._json
+
+
+class ThreadedBodyRoute(APIRoute):
+    """A route whose JSON body is parsed in a worker thread, so a large body does not hold up
+    the event loop (the model's validation after it is bounded by the models' list limits)."""
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+
+        async def route(request: Request) -> Response:
+            return await handler(_ThreadedJSONRequest(request.scope, request.receive))
+
+        return route

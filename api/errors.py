@@ -10,7 +10,9 @@ import logging
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.routing import iter_route_contexts
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Mount
 
 from tracer.errors import SceneError, TilerenderError
 
@@ -70,6 +72,9 @@ def not_found(what: str, ident: str) -> ApiError:
 
 def _validation_message(errors: list[dict]) -> str:
     first = errors[0]
+    if first.get("type") == "json_invalid":
+        reason = (first.get("ctx") or {}).get("error", "invalid JSON")
+        return f"the request body is not valid JSON: {reason}"
     loc = [str(p) for p in first.get("loc", ()) if p not in ("body", "query", "path")]
     where = ".".join(loc) or "request"
     message = str(first.get("msg", "invalid value")).removeprefix("Value error, ")
@@ -88,6 +93,32 @@ def _jsonable(errors: list[dict]) -> list[dict]:
         }
         for e in errors[:20]
     ]
+
+
+def allowed_methods(app: FastAPI, path: str) -> list[str]:
+    """Every method some route of ``app`` answers at ``path`` (a path has one route per
+    method: Starlette's 405 names only the first route's); empty when no route matches."""
+    methods: set[str] = set()
+    for route in iter_route_contexts(app.routes):  # the routes of the included routers too
+        if isinstance(route.original_route, Mount) or not route.methods:
+            continue  # a mounted app (the static files) names its own methods
+        if route.path_regex.fullmatch(path):
+            methods |= route.methods
+    return sorted(methods)
+
+
+def _method_not_allowed(request: Request, detail: str, headers: dict) -> tuple[str, dict]:
+    """A 405's message and headers with ``Allow`` naming every method of the path."""
+    root = request.scope.get("root_path", "")
+    path = request.url.path.removeprefix(root) if root else request.url.path
+    named = headers.get("Allow", "")  # a mounted app's own (the static files)
+    allowed = allowed_methods(request.app, path) or [
+        m.strip() for m in named.split(",") if m.strip()
+    ]
+    if not allowed:
+        return detail, headers
+    message = f"{request.method} is not allowed here (allowed: {', '.join(allowed)})"
+    return message, {**headers, "Allow": ", ".join(allowed)}
 
 
 def install(app: FastAPI) -> None:
@@ -113,7 +144,10 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         detail = exc.detail if isinstance(exc.detail, str) else CODES.get(exc.status_code, "error")
-        return error_response(exc.status_code, detail, headers=getattr(exc, "headers", None))
+        headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:
+            detail, headers = _method_not_allowed(request, detail, headers or {})
+        return error_response(exc.status_code, detail, headers=headers)
 
     @app.exception_handler(TimeoutError)
     async def _timeout(request: Request, exc: TimeoutError) -> JSONResponse:

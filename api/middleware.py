@@ -1,15 +1,20 @@
-"""ASGI middleware: request body limit, request timeout, request metrics.
+"""ASGI middleware: bearer-token auth, request body limit, request timeout, request metrics,
+CORS with JSON refusals.
 
 Pure ASGI (no ``BaseHTTPMiddleware``), so streaming responses pass through untouched.
 """
 
 import asyncio
+import hmac
 import json
 import time
 
+from starlette.datastructures import Headers, QueryParams
 from starlette.exceptions import HTTPException
+from starlette.middleware.cors import CORSMiddleware
+from starlette.responses import JSONResponse, Response
 
-from api.errors import error_body
+from api.errors import ApiError, error_body
 
 
 async def _send_json(send, status: int, body: dict, headers: list | None = None) -> None:
@@ -26,6 +31,68 @@ async def _send_json(send, status: int, body: dict, headers: list | None = None)
         }
     )
     await send({"type": "http.response.body", "body": payload})
+
+
+def token_error(token: str, headers: Headers, query: QueryParams) -> ApiError | None:
+    """Why a request with these headers and query may not pass a service whose token is
+    ``token`` (None: it may). The token comes as ``Authorization: Bearer <token>`` (or
+    ``?access_token=<token>``, for an ``<img>`` or ``EventSource`` that cannot set headers):
+    missing -> 401, wrong -> 403."""
+    challenge = {"WWW-Authenticate": "Bearer"}
+    header = headers.get("authorization")
+    if header is not None:
+        scheme, _, value = header.partition(" ")
+        if scheme.lower() != "bearer" or not value.strip():
+            message = "the Authorization header must be 'Bearer <token>'"
+            return ApiError(401, message, "unauthorized", challenge)
+        supplied = value.strip()
+    else:
+        supplied = query.get("access_token")
+    if not supplied:
+        return ApiError(401, "this service needs a bearer token", "unauthorized", challenge)
+    if not hmac.compare_digest(supplied.encode(), token.encode()):
+        return ApiError(403, "the bearer token is not valid", "forbidden")
+    return None
+
+
+class BearerAuth:
+    """With a token configured, a request under ``prefix`` without the token is answered
+    401 (403 with a wrong one) before anything reads its body: the app is not called."""
+
+    def __init__(self, app, settings, prefix: str = "/v1") -> None:
+        self.app = app
+        self.settings = settings
+        self.prefix = prefix
+
+    async def __call__(self, scope, receive, send):
+        token = self.settings.token
+        if scope["type"] == "http" and token:
+            path = scope.get("path", "")
+            if path == self.prefix or path.startswith(self.prefix + "/"):
+                query = QueryParams(scope.get("query_string", b"").decode("latin-1"))
+                error = token_error(token, Headers(scope=scope), query)
+                if error is not None:
+                    headers = [
+                        (k.lower().encode(), v.encode()) for k, v in (error.headers or {}).items()
+                    ]
+                    body = error_body(error.status, error.message, error.code)
+                    return await _send_json(send, error.status, body, headers)
+        return await self.app(scope, receive, send)
+
+
+class JSONCORSMiddleware(CORSMiddleware):
+    """Starlette's CORS middleware, with a refused preflight answered in the service's JSON
+    error shape instead of plain text."""
+
+    def preflight_response(self, request_headers: Headers) -> Response:
+        response = super().preflight_response(request_headers)
+        if response.status_code < 400:
+            return response
+        headers = {
+            k: v for k, v in response.headers.items() if k not in ("content-type", "content-length")
+        }
+        body = error_body(response.status_code, response.body.decode())
+        return JSONResponse(body, response.status_code, headers=headers)
 
 
 class BodyLimit:

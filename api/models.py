@@ -1,10 +1,29 @@
 """Request and response shapes of the API (the OpenAPI document is built from these)."""
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
-from tracer.scene.format import Vec3
+from tracer.scene import format as fmt
+
+MAX_CAMERA_PATH = 10_000
+"""Cameras a job's ``camera_path`` may hold whatever the settings say: the model refuses a
+longer list after reading this many (each is validated), so a hostile one costs little."""
+MAX_JOB_FRAMES = fmt.MAX_FRAMES
+"""Entries of a job's ``frames``: no animation has more frames than the scene format allows."""
+MAX_COMMIT_OPS = 10_000
+"""Operations one commit may hold whatever the settings say (``max_ops`` is at most this)."""
+
+
+def _three_components(value: Any) -> Any:
+    """Refuse a vector of the wrong length before its items are validated (pydantic checks
+    a tuple's length only after validating every item it was given)."""
+    if isinstance(value, list | tuple) and len(value) != 3:
+        raise ValueError(f"a vector has 3 components, not {len(value)}")
+    return value
+
+
+Vec3 = Annotated[fmt.Vec3, BeforeValidator(_three_components)]
 
 
 class Strict(BaseModel):
@@ -34,7 +53,7 @@ ERRORS: dict[int | str, dict[str, Any]] = {
 
 def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
     texts = {
-        400: "bad request",
+        400: "a body that cannot be read (not UTF-8, too deeply nested, malformed multipart)",
         409: "conflict",
         413: "too large",
         415: "unsupported media type",
@@ -88,6 +107,7 @@ class ScenesPublic(BaseModel):
 class CommitRequest(Strict):
     ops: list[dict[str, Any]] = Field(
         min_length=1,
+        max_length=MAX_COMMIT_OPS,
         description="scene operations (docs/dynamic-scenes.md), applied all or nothing",
         json_schema_extra={"examples": [[{"op": "set_sky", "radiance": [0.1, 0.1, 0.1]}]]},
     )
@@ -168,11 +188,15 @@ class JobCreate(Strict):
     height: int | None = Field(default=None, ge=1)
     seed: int | None = Field(default=None, ge=0, lt=2**63)
     max_depth: int | None = Field(default=None, ge=1, le=1024)
-    frames: list[int] | None = Field(
-        default=None, description="animation frames (default all of the scene's)"
+    frames: list[Annotated[int, Field(ge=0, lt=MAX_JOB_FRAMES)]] | None = Field(
+        default=None,
+        max_length=MAX_JOB_FRAMES,
+        description="animation frames (default all of the scene's)",
     )
     camera_path: list[CameraPose] | None = Field(
-        default=None, description="an animation along these cameras instead of the keyframes"
+        default=None,
+        max_length=MAX_CAMERA_PATH,
+        description="an animation along these cameras instead of the keyframes",
     )
     camera: CameraPose | None = Field(
         default=None, description="a still from this view instead of the scene's camera"
@@ -194,8 +218,6 @@ class JobCreate(Strict):
                 raise ValueError("frames must not be empty")
             if len(set(self.frames)) != len(self.frames):
                 raise ValueError("frames must not repeat")
-            if min(self.frames) < 0:
-                raise ValueError("frames must be non-negative")
         if self.camera_path is not None and not self.camera_path:
             raise ValueError("camera_path must not be empty")
         return self

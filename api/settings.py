@@ -12,6 +12,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from api.models import MAX_COMMIT_OPS, MAX_JOB_FRAMES
 from cluster.balancing import DEFAULT_BALANCER
 
 ENV_PREFIX = "TILERENDER_"
@@ -65,11 +66,13 @@ class Settings(BaseModel):
     max_width: int = Field(default=3840, ge=1, le=16384)
     max_height: int = Field(default=2160, ge=1, le=16384)
     max_spp: int = Field(default=4096, ge=1)
-    max_frames: int = Field(default=1000, ge=1)
+    max_frames: int = Field(default=1000, ge=1, le=MAX_JOB_FRAMES)
     max_time_budget: float = Field(default=3600.0, gt=0)
     max_queue: int = Field(default=16, ge=1, description="queued and running jobs")
     max_sessions: int = Field(default=4, ge=1)
-    max_ops: int = Field(default=1000, ge=1, description="operations in one commit")
+    max_ops: int = Field(
+        default=1000, ge=1, le=MAX_COMMIT_OPS, description="operations in one commit"
+    )
     request_timeout: float = Field(default=30.0, gt=0, description="seconds; not for streams")
     job_turn_seconds: float = Field(
         default=0.5,

@@ -2,11 +2,11 @@
 
 from fastapi import APIRouter
 
-from api.deps import Ctx
+from api.deps import Ctx, ThreadedBodyRoute
 from api.errors import ApiError
 from api.models import BalancerUpdate, ClusterPublic, TracerPublic, errors
 
-router = APIRouter(prefix="/cluster", tags=["cluster"])
+router = APIRouter(prefix="/cluster", tags=["cluster"], route_class=ThreadedBodyRoute)
 
 
 def cluster_public(ctx: Ctx) -> ClusterPublic:
@@ -52,7 +52,7 @@ async def cluster_status(ctx: Ctx) -> ClusterPublic:
     return cluster_public(ctx)
 
 
-@router.put("/balancer", response_model=ClusterPublic, responses=errors(503, 504))
+@router.put("/balancer", response_model=ClusterPublic, responses=errors(400, 503, 504))
 async def set_balancer(body: BalancerUpdate, ctx: Ctx) -> ClusterPublic:
     """Choose the balancer (from the next frame on)."""
     from cluster.balancing import BALANCERS

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse, StreamingResponse
 
-from api.deps import Ctx
+from api.deps import Ctx, ThreadedBodyRoute
 from api.errors import ApiError
 from api.events import TERMINAL_EVENTS, sse
 from api.job_run import job_dir, job_frames, job_state
@@ -19,8 +19,9 @@ from api.store import TERMINAL, QueueFull
 from cluster.progressive import PARTS
 from tracer.errors import SceneError, format_validation_error
 from tracer.io.images import read_image, write_image
+from tracer.scene.model import SceneState
 
-router = APIRouter(prefix="/jobs", tags=["jobs"])
+router = APIRouter(prefix="/jobs", tags=["jobs"], route_class=ThreadedBodyRoute)
 
 FORMATS = {
     "png": "image/png",
@@ -77,9 +78,22 @@ def _job(ctx: Ctx, job_id: str) -> dict:
     return record
 
 
-def _check_limits(ctx: Ctx, body: JobCreate, state) -> None:
+def _requested_frames(body: JobCreate, state: SceneState) -> int:
+    """How many frames ``body`` asks for, counted without building any of them."""
+    if body.kind == "still":
+        return 1
+    if body.camera_path is not None:
+        return len(body.camera_path)
+    if body.frames is not None:
+        return len(body.frames)
+    return state.animation.frames if state.animation is not None else 1
+
+
+def _plan(ctx: Ctx, body: JobCreate, state: SceneState) -> tuple[dict, SceneState, list]:
+    """The job's request, its scene with the overrides and its frames, or the ApiError of
+    the first limit ``body`` is over. The cheap checks (counts, numbers) come first, so a
+    request over a limit is refused before any camera is built; run in a worker thread."""
     s = ctx.settings
-    request = body.model_dump()
     if body.spp is not None and body.spp > s.max_spp:
         raise ApiError(422, f"spp: at most {s.max_spp}", "limit")
     if body.max_spp is not None and body.max_spp > s.max_spp:
@@ -94,6 +108,20 @@ def _check_limits(ctx: Ctx, body: JobCreate, state) -> None:
         )
     if body.time_budget is not None and body.time_budget > s.max_time_budget:
         raise ApiError(422, f"time_budget: at most {s.max_time_budget:g} s", "limit")
+    if body.kind == "animation" and body.camera_path is None:
+        animation = state.animation
+        if animation is None:
+            raise ApiError(
+                422, "the scene has no animation: give a camera_path, or kind still", "no_animation"
+            )
+        if body.frames is not None and max(body.frames) >= animation.frames:
+            raise ApiError(
+                422, f"frames: the scene's animation has frames 0-{animation.frames - 1}", "limit"
+            )
+    count = _requested_frames(body, state)
+    if count > s.max_frames:
+        raise ApiError(422, f"{count} frames: at most {s.max_frames}", "limit")
+    request = body.model_dump(exclude_none=True)
     try:
         posed = job_state(state, request)
     except SceneError as exc:
@@ -112,33 +140,19 @@ def _check_limits(ctx: Ctx, body: JobCreate, state) -> None:
                 f"the scene's spp ({posed.render.spp}) is over the limit of {s.max_spp}; give spp",
                 "limit",
             )
-    if body.kind == "animation" and body.camera_path is None:
-        animation = state.animation
-        if animation is None:
-            raise ApiError(
-                422, "the scene has no animation: give a camera_path, or kind still", "no_animation"
-            )
-        if body.frames is not None and max(body.frames) >= animation.frames:
-            raise ApiError(
-                422, f"frames: the scene's animation has frames 0-{animation.frames - 1}", "limit"
-            )
     try:
         frames = job_frames(posed, request)
     except pydantic.ValidationError as exc:
         raise ApiError(422, "camera: " + format_validation_error(exc)) from None
-    if len(frames) > s.max_frames:
-        raise ApiError(422, f"{len(frames)} frames: at most {s.max_frames}", "limit")
+    return request, posed, frames
 
 
-@router.post("", status_code=202, response_model=JobPublic, responses=errors(429))
+@router.post("", status_code=202, response_model=JobPublic, responses=errors(400, 429))
 async def submit_job(body: JobCreate, ctx: Ctx, response: Response) -> JobPublic:
     """Submit a still or an animation render."""
     entry = await to_thread.run_sync(ctx.scenes.get, body.scene_id)
     state = entry.graph.state
-    _check_limits(ctx, body, state)
-    request = body.model_dump(exclude_none=True)
-    posed = job_state(state, request)
-    frames = job_frames(posed, request)
+    request, posed, frames = await to_thread.run_sync(_plan, ctx, body, state)
     job_id = new_id("j")
     await to_thread.run_sync(ctx.service.save_job_state, job_id, state)
     try:

@@ -11,7 +11,7 @@ from fastapi import APIRouter, Request, Response
 from ray.exceptions import RayError
 from starlette.datastructures import UploadFile
 
-from api.deps import Ctx
+from api.deps import Ctx, ThreadedBodyRoute
 from api.errors import ApiError
 from api.models import (
     CommitPublic,
@@ -30,7 +30,7 @@ from tracer.scene import format as fmt
 from tracer.scene.loader import MESH_SUFFIXES
 
 log = logging.getLogger("tilerender.api")
-router = APIRouter(prefix="/scenes", tags=["scenes"])
+router = APIRouter(prefix="/scenes", tags=["scenes"], route_class=ThreadedBodyRoute)
 
 UPLOAD_SCHEMA = {
     "requestBody": {
@@ -265,13 +265,13 @@ async def _commit(scene_id: str, body: CommitRequest, ctx: Ctx) -> CommitPublic:
     return CommitPublic(scene_id=scene_id, version=version)
 
 
-@router.post("/{scene_id}/commits", response_model=CommitPublic, responses=errors())
+@router.post("/{scene_id}/commits", response_model=CommitPublic, responses=errors(400))
 async def commit_ops(scene_id: str, body: CommitRequest, ctx: Ctx) -> CommitPublic:
     """Apply operations as one commit (all or nothing); returns the new version."""
     return await _commit(scene_id, body, ctx)
 
 
-@router.patch("/{scene_id}", response_model=CommitPublic, responses=errors())
+@router.patch("/{scene_id}", response_model=CommitPublic, responses=errors(400))
 async def patch_scene(scene_id: str, body: CommitRequest, ctx: Ctx) -> CommitPublic:
     """Same as POST /scenes/{id}/commits."""
     return await _commit(scene_id, body, ctx)
@@ -306,7 +306,7 @@ def tracer_failure(error: RayError) -> ApiError:
     return ApiError(503, "the cluster could not answer: a tracer failed", "unavailable")
 
 
-@router.post("/{scene_id}/query", response_model=QueryHit, responses=errors(503, 504))
+@router.post("/{scene_id}/query", response_model=QueryHit, responses=errors(400, 503, 504))
 async def query_scene(scene_id: str, body: QueryRequest, ctx: Ctx) -> QueryHit:
     """Trace one ray (or the ray through a pixel) at the scene's current version (picking)."""
     entry = await get_entry(ctx, scene_id)

@@ -11,7 +11,7 @@ from anyio import to_thread
 from fastapi import APIRouter, Request, Response
 from fastapi.responses import StreamingResponse
 
-from api.deps import Ctx
+from api.deps import Ctx, ThreadedBodyRoute
 from api.errors import ApiError
 from api.live_session import LiveSession, set_camera_now
 from api.models import CameraPose, SessionCreate, SessionPublic, SessionsPublic, errors
@@ -19,7 +19,7 @@ from api.scenes import new_id
 from tracer.errors import format_validation_error
 from tracer.scene import format as fmt
 
-router = APIRouter(prefix="/sessions", tags=["sessions"])
+router = APIRouter(prefix="/sessions", tags=["sessions"], route_class=ThreadedBodyRoute)
 
 BOUNDARY = "frame"
 FIRST_FRAME_WAIT = 10.0
@@ -54,7 +54,9 @@ def _camera(base: fmt.Camera, pose: CameraPose | None, width: int, height: int) 
         raise ApiError(422, "camera: " + format_validation_error(exc)) from None
 
 
-@router.post("", status_code=201, response_model=SessionPublic, responses=errors(429, 503, 504))
+@router.post(
+    "", status_code=201, response_model=SessionPublic, responses=errors(400, 429, 503, 504)
+)
 async def open_session(body: SessionCreate, ctx: Ctx, response: Response) -> SessionPublic:
     """Open an interactive session on a scene."""
     s = ctx.settings
@@ -114,7 +116,7 @@ async def close_session(session_id: str, ctx: Ctx) -> Response:
     return Response(status_code=204)
 
 
-@router.put("/{session_id}/camera", response_model=SessionPublic, responses=errors())
+@router.put("/{session_id}/camera", response_model=SessionPublic, responses=errors(400))
 async def update_camera(session_id: str, pose: CameraPose, ctx: Ctx) -> SessionPublic:
     """Move the session's camera (the next frame shows it; convergence starts over)."""
     live = _live(ctx, session_id)

@@ -211,6 +211,39 @@ def test_undefined_material_is_refused():
         fmt.SceneFile.model_validate(data)
 
 
+def _long_names(scene: dict, kind: str, name: str) -> dict:
+    if kind == "material":
+        scene["materials"][name] = scene["materials"].pop("grey")
+        for obj in scene["objects"]:
+            obj["material"] = name if obj["material"] == "grey" else obj["material"]
+    elif kind == "object":
+        scene["objects"][1]["name"] = name
+    elif kind == "parent":
+        scene["objects"][0]["name"] = scene["objects"][1]["parent"] = name
+    elif kind == "animated object":
+        scene["objects"][1]["kind"] = "rigid"
+        scene["objects"][1]["name"] = name[: fmt.MAX_NAME]
+        scene["animation"] = {"frames": 2, "objects": {name: [{"time": 0}]}}
+    elif kind == "mesh path":
+        scene["objects"][1]["shape"] = name + ".obj"
+    elif kind == "texture":
+        scene["materials"]["grey"]["texture"] = {"file": name + ".png"}
+    return scene
+
+
+@pytest.mark.parametrize(
+    "kind", ["material", "object", "parent", "animated object", "mesh path", "texture"]
+)
+def test_names_have_a_length_limit(kind):
+    """A name the scene chooses has at most MAX_NAME characters, a file reference at most
+    MAX_PATH (a 10 MB material name used to be kept and returned by every GET)."""
+    limit = fmt.MAX_PATH if kind in ("mesh path", "texture") else fmt.MAX_NAME
+    longest = "n" * (limit - 4 if kind in ("mesh path", "texture") else limit)
+    fmt.SceneFile.model_validate(_long_names(tiny_scene(), kind, longest))
+    with pytest.raises(pydantic.ValidationError, match=f"at most {limit} characters"):
+        fmt.SceneFile.model_validate(_long_names(tiny_scene(), kind, longest + "n"))
+
+
 @pytest.mark.parametrize(
     "change, message",
     [

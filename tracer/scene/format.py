@@ -24,7 +24,11 @@ from tracer.scene.format_animation import (
     Vec4,
 )
 from tracer.scene.format_base import (
+    MAX_NAME,
+    MAX_PATH,
+    FilePath,
     Finite,
+    Name,
     NonNegative,
     Positive,
     Radiance,
@@ -65,6 +69,8 @@ __all__ = [
     "INTEGRATORS",
     "MATERIAL_TYPES",
     "MAX_FRAMES",
+    "MAX_NAME",
+    "MAX_PATH",
     "AnimationSettings",
     "Box",
     "Camera",
@@ -77,6 +83,7 @@ __all__ = [
     "Direction",
     "EffectName",
     "EnvironmentSky",
+    "FilePath",
     "Finite",
     "GradientSky",
     "Ior",
@@ -84,6 +91,7 @@ __all__ = [
     "Material",
     "MeshFile",
     "MirrorMaterial",
+    "Name",
     "NonNegative",
     "ObjectKeyframe",
     "ObjectTrack",
@@ -124,7 +132,7 @@ class MeshFile(Strict):
     """Triangles from a file (OBJ, PLY, STL, glTF, GLB), relative to the scene file."""
 
     type: Literal["file"] = "file"
-    path: str = Field(min_length=1)
+    path: FilePath
 
 
 class Rectangle(Strict):
@@ -160,13 +168,12 @@ Shape = Annotated[MeshFile | Rectangle | Box | Sphere | Plane, Field(discriminat
 
 
 class SceneObject(Strict):
-    name: str = Field(default="", max_length=200)
+    name: str = Field(default="", max_length=MAX_NAME)
     shape: Shape | str = Field(
         description="A built-in shape, a mesh file, or a mesh file's path as a plain string"
     )
-    material: str | None = Field(
+    material: Name | None = Field(
         default=None,
-        min_length=1,
         description="Name of a material; left out for a mesh file, the file's own materials "
         "(glTF PBR or OBJ/MTL, docs/materials.md)",
     )
@@ -176,7 +183,7 @@ class SceneObject(Strict):
         description="static: never moves (baked into one BVH); rigid: moves as a whole; "
         "deformable: its vertices move; dynamic: its topology changes",
     )
-    parent: str | None = Field(
+    parent: Name | None = Field(
         default=None,
         description="Name of an earlier object: this object's transform is relative to it",
     )
@@ -298,7 +305,9 @@ class SceneFile(Strict):
         default_factory=list,
         description="Point, spot and sun lights (emitting surfaces are materials with emission)",
     )
-    materials: dict[str, Material] = Field(min_length=1)
+    materials: dict[Name, Material] = Field(
+        min_length=1, description=f"Material name (at most {MAX_NAME} characters) -> material"
+    )
     objects: list[SceneObject] = Field(min_length=1)
     animation: AnimationSettings | None = None
 

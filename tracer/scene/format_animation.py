@@ -7,7 +7,7 @@ import numpy as np
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from tracer.maths import portable
-from tracer.scene.format_base import Finite, Positive, Strict, Vec3
+from tracer.scene.format_base import Finite, Name, Positive, Strict, Vec3
 
 MAX_FRAMES = 100_000
 """Most frames an animation may have."""
@@ -106,7 +106,7 @@ class AnimationSettings(Strict):
 
     fps: Positive = Field(default=24.0, description="Frames per second")
     frames: int = Field(ge=1, le=MAX_FRAMES, description="Number of frames (required)")
-    objects: dict[str, ObjectTrack] = Field(
+    objects: dict[Name, ObjectTrack] = Field(
         default_factory=dict,
         description="Object name -> keys; the object must be named uniquely and not be static",
     )

@@ -1,5 +1,6 @@
 """The base of every model of the scene format (``tracer.scene.format``): the strict model,
-the number types, an object's placement (``Transform``) and the ``type``-tag discriminator."""
+the name and number types, an object's placement (``Transform``) and the ``type``-tag
+discriminator."""
 
 import math
 from typing import Annotated
@@ -8,6 +9,16 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, model_validator
 
 from tracer.maths import portable
+
+MAX_NAME = 200
+"""Characters of a name the scene chooses: a material, an object, an object's parent, an
+animated object (and, in commits, a mesh or a node). A name is stored with the scene and
+returned by every inspection of it, so it is short."""
+MAX_PATH = 1024
+"""Characters of a file reference (a mesh, a texture, an environment image)."""
+
+Name = Annotated[str, Field(min_length=1, max_length=MAX_NAME)]
+FilePath = Annotated[str, Field(min_length=1, max_length=MAX_PATH)]
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Vec3 = tuple[Finite, Finite, Finite]

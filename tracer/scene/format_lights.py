@@ -7,7 +7,15 @@ import numpy as np
 from pydantic import AfterValidator, Field, Tag, model_validator
 
 from tracer.maths import portable
-from tracer.scene.format_base import Finite, NonNegative, Radiance, Strict, Vec3, type_tag
+from tracer.scene.format_base import (
+    FilePath,
+    Finite,
+    NonNegative,
+    Radiance,
+    Strict,
+    Vec3,
+    type_tag,
+)
 
 
 class ConstantSky(Strict):
@@ -37,8 +45,7 @@ class EnvironmentSky(Strict):
     sampling by luminance)."""
 
     type: Literal["environment"]
-    file: str = Field(
-        min_length=1,
+    file: FilePath = Field(
         description="An OpenEXR (.exr, R, G and B channels) or NumPy (.npy, float (H, W, 3)) "
         "image of linear RGB radiance, relative to the scene file and inside its directory",
     )

@@ -5,7 +5,15 @@ from typing import Annotated, Literal
 
 from pydantic import Field, Tag, model_validator
 
-from tracer.scene.format_base import NonNegative, Positive, Radiance, Reflectance, Strict, type_tag
+from tracer.scene.format_base import (
+    FilePath,
+    NonNegative,
+    Positive,
+    Radiance,
+    Reflectance,
+    Strict,
+    type_tag,
+)
 
 
 class Texture(Strict):
@@ -17,7 +25,7 @@ class Texture(Strict):
     ``v`` bottom to top across the image (OBJ's and OpenGL's convention; glTF files are
     converted on load)."""
 
-    file: str = Field(min_length=1, description="Image file, relative to the scene file")
+    file: FilePath = Field(description="Image file, relative to the scene file")
     wrap: Literal["repeat", "clamp"] = Field(
         default="repeat",
         description="Outside [0, 1]: repeat the image (tiling), or clamp to its edge texels",

@@ -45,11 +45,14 @@ def _invalid(message: str) -> PydanticCustomError:
 
 
 def _node_ref(value) -> int | str:
-    if isinstance(value, str) and value:
+    if isinstance(value, str) and 0 < len(value) <= fmt.MAX_NAME:
         return value
     if isinstance(value, int | np.integer) and not isinstance(value, bool):
         return int(value)
-    raise _invalid("a node is referred to by its id (an integer) or its name (a string)")
+    raise _invalid(
+        "a node is referred to by its id (an integer) or its name (a string of at most "
+        f"{fmt.MAX_NAME} characters)"
+    )
 
 
 def _node_id(value) -> int:
@@ -103,8 +106,8 @@ def _uvs(value) -> np.ndarray:
 
 NodeRef = Annotated[int | str, PlainValidator(_node_ref)]
 NodeId = Annotated[int, PlainValidator(_node_id)]
-Name = Annotated[str, Field(min_length=1, max_length=200)]
-NodeName = Annotated[str, Field(max_length=200)]
+Name = fmt.Name
+NodeName = Annotated[str, Field(max_length=fmt.MAX_NAME)]
 Vertices = Annotated[np.ndarray, PlainValidator(_vertices)]
 """float64 (V, 3), read-only; given as nested lists or any numeric array."""
 Faces = Annotated[np.ndarray, PlainValidator(_faces)]
