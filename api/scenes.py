@@ -26,6 +26,7 @@ files its meshes reference (glTF and GLB URIs, OBJ ``mtllib``, MTL ``map_Kd``, P
 them, so a scene can reference only files inside its upload (``api.upload_paths``).
 """
 
+import collections
 import dataclasses
 import re
 import secrets
@@ -53,6 +54,10 @@ from tracer.scene.ops import Commit
 from tracer.shading.lights import mean_sky_radiance
 
 COMPACT_EVERY = 256
+KEEP_COMPILED = 2
+"""Scenes whose compiled form (at their current version) the repository keeps, the most
+recently changed, so that a commit compiles from it incrementally, as the tracers' replicas
+do: moving an object then costs milliseconds, not a rebuild of the scene."""
 CHUNK = 1 << 16
 
 
@@ -222,19 +227,23 @@ def bounds(state: SceneState) -> tuple[list[float], list[float]] | None:
     return [float(v) for v in lo], [float(v) for v in hi]
 
 
-def effects(state: SceneState) -> dict:
+def effects(compiled, render) -> dict:
     """The effect plan the tracers render the scene with:
-    ``tracer.integrators.effects.effect_plan`` of the compiled scene under its render settings (the
-    same function, so the same answer). Compiling builds the BVHs, about a second per million
-    triangles, on a worker thread (numba releases the GIL); the result is cached per version with
-    the rest of the summary."""
-    from tracer.compiled.scene import compile_scene
+    ``tracer.integrators.effects.effect_plan`` of the compiled scene under its render settings
+    (the same function, so the same answer)."""
     from tracer.integrators.effects import effect_plan
 
-    return effect_plan(compile_scene(state), state.render).to_json()
+    return effect_plan(compiled, render).to_json()
 
 
-def summary(state: SceneState) -> dict:
+def summary(state: SceneState, compiled=None) -> dict:
+    """What GET shows of a scene. Needs the compiled scene (its effect plan): compiled here
+    unless given, about a second per million triangles, so on a worker thread (numba releases
+    the GIL); what the renderer refuses raises SceneError here."""
+    if compiled is None:
+        from tracer.compiled.scene import compile_scene
+
+        compiled = compile_scene(state)
     box = bounds(state)
     animation = state.animation
     return {
@@ -254,7 +263,7 @@ def summary(state: SceneState) -> dict:
             "animated_nodes": len(animation.nodes),
             "camera": bool(animation.camera),
         },
-        "effects": effects(state),
+        "effects": effects(compiled, state.render),
         "node_list": [
             {
                 "id": n.id,
@@ -294,6 +303,24 @@ class SceneRepository:
         self.tmp.mkdir(parents=True, exist_ok=True)
         self._entries: dict[str, SceneEntry] = {}
         self._lock = threading.Lock()
+        self._compiled: collections.OrderedDict[str, tuple[int, object]] = collections.OrderedDict()
+
+    def _compile(self, scene_id: str, state: SceneState) -> dict:
+        """``state``'s summary, compiled from the kept compiled form of the scene's previous
+        version where there is one (SceneError if the renderer refuses it); keeps the result."""
+        from tracer.compiled.scene import compile_scene
+
+        with self._lock:
+            kept = self._compiled.get(scene_id)
+        previous = kept[1] if kept is not None and kept[0] == state.version - 1 else None
+        compiled = compile_scene(state, previous)
+        described = summary(state, compiled)
+        with self._lock:
+            self._compiled[scene_id] = (state.version, compiled)
+            self._compiled.move_to_end(scene_id)
+            while len(self._compiled) > KEEP_COMPILED:
+                self._compiled.popitem(last=False)
+        return described
 
     def staging(self) -> "Upload":
         """A fresh upload in progress, with its own staging directory."""
@@ -338,8 +365,8 @@ class SceneRepository:
                 "too_many_triangles",
             )
         state = dataclasses.replace(state, version=0)
-        described = summary(state)  # compiles it: what the renderer refuses fails here (422)
         scene_id = new_id("s")
+        described = self._compile(scene_id, state)  # what the renderer refuses fails here (422)
         directory = self.root / scene_id
         (staged / "commits").mkdir()
         write_atomic(staged / "state.tls", encode_state(state))
@@ -412,7 +439,7 @@ class SceneRepository:
                     f"than the limit of {self.settings.max_triangles}",
                     "too_many_triangles",
                 )
-            described = summary(candidate)  # compiles it: what the renderer refuses fails here
+            described = self._compile(entry.id, candidate)  # what the renderer refuses: 422
             commit = entry.graph.commit(parsed)  # the same ops on the same state: it applies
             version = commit.version
             write_atomic(
@@ -440,7 +467,7 @@ class SceneRepository:
             state = entry.graph.state
         cached = entry.summary_cache.get(state.version)
         if cached is None:
-            cached = summary(state)
+            cached = self._compile(entry.id, state)
             entry.summary_cache.clear()
             entry.summary_cache[state.version] = cached
         return {**cached, "version": state.version}
@@ -450,6 +477,7 @@ class SceneRepository:
             raise ApiError(404, f"no scene {scene_id!r}", "not_found")
         with self._lock:
             self._entries.pop(scene_id, None)
+            self._compiled.pop(scene_id, None)
         self.store.delete_scene(scene_id)
         target = self.root / scene_id
         if target.is_dir():

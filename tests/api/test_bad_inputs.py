@@ -575,6 +575,35 @@ def test_a_commit_the_renderer_refuses_changes_nothing(client):
     assert wait_job(client, job["id"])["status"] == "done"
 
 
+def test_a_commit_compiles_from_the_previous_version(client, monkeypatch):
+    """The check of a commit compiles its state from the kept compiled form of the version
+    before (as the replicas do), not from scratch, and describes it as a fresh compile would."""
+    import tracer.compiled.scene as compiled_scene
+    from api.scenes import summary
+
+    previous_given = []
+    compile_scene = compiled_scene.compile_scene
+
+    def watched(state, previous=None, *args, **kwargs):
+        previous_given.append(previous is not None)
+        return compile_scene(state, previous, *args, **kwargs)
+
+    monkeypatch.setattr(compiled_scene, "compile_scene", watched)
+    scene = upload_tiny(client)
+    path = f"/v1/scenes/{scene['id']}"
+    for k in range(3):
+        move = {
+            "op": "set_transform",
+            "node": "cube",
+            "transform": {"translate": [0.1 * k, 0.5, 0]},
+        }
+        assert client.post(f"{path}/commits", json={"ops": [move]}).status_code == 200
+    assert previous_given == [False, True, True, True]
+    entry = client.app.state.ctx.scenes.get(scene["id"])
+    shown = client.get(path).json()
+    assert shown["effects"] == summary(entry.graph.state)["effects"]
+
+
 def test_a_query_never_answers_with_a_raw_ray_error(client, monkeypatch):
     """A tracer that fails a ray query is answered cleanly: its own reason for a scene it
     refuses (422), else 503; never Ray's text naming the actor, its pid and node IP (a refusal
