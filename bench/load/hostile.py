@@ -266,6 +266,9 @@ def run_case(
 def _clean_up(answer: Answer, http: httpx.Client, auth: dict) -> None:
     """Remove what a case that was (wrongly or rightly) accepted made."""
     location = answer.headers.get("location", "")
+    if answer.status == 201 and location.startswith("/v1/sessions/"):
+        # as a viewer would: its first frame (and the memory that takes), then close
+        http.get(location + "/frame.jpg", headers=auth, timeout=60)
     if answer.status == 201 and location.startswith(("/v1/scenes/", "/v1/sessions/")):
         http.delete(location, headers=auth, timeout=60)
     elif answer.status == 202 and location.startswith("/v1/jobs/"):
@@ -290,6 +293,8 @@ def run_server(
             outcome = run_case(case, target, api.process.pid, baseline, tolerance_mib, api.data_dir)
             log(format_row(outcome))
             outcomes.append(outcome)
+            if outcome.rss_delta_mib > tolerance_mib:  # charge the growth to this case only
+                baseline += outcome.rss_delta_mib
         return outcomes
 
 
