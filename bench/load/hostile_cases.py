@@ -499,7 +499,7 @@ SESSION_CASES = [
 ]  # fmt: skip
 
 METHOD_CASES = [
-    C(f"method: {method} {path}", f"{method} {path}", 405, call(method, path.format(
+    C(f"method: {method} {path}", "a wrong method", 405, call(method, path.format(
       scene="{scene}", job="{done_job}")), allow=allow)
     for method, path, allow in [
         ("PUT", "/v1/scenes", methods("GET", "POST")),
