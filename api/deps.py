@@ -42,15 +42,23 @@ def get_context(request: Request) -> Context:
 Ctx = Annotated[Context, Depends(get_context)]
 
 
+NOT_JSON = "the request body is not valid JSON"
+
+
 def parse_json(body: bytes) -> Any:
-    """``body`` as JSON; HTTPException 400 for bytes that are not text or nest too deeply (a
-    malformed document raises JSONDecodeError, which FastAPI answers with 422)."""
+    """``body`` as JSON; HTTPException 400 for bytes that are not JSON text of sane depth and
+    numbers (a malformed document raises JSONDecodeError, which is answered 400 the same way:
+    ``api.errors``). A body that parses but fails its model is a 422."""
     try:
         return json.loads(body)
+    except json.JSONDecodeError:
+        raise
     except UnicodeDecodeError:
-        raise HTTPException(400, "the request body is not UTF-8 text") from None
+        raise HTTPException(400, f"{NOT_JSON}: not UTF-8 text") from None
     except RecursionError:
-        raise HTTPException(400, "the request body's JSON nests too deeply") from None
+        raise HTTPException(400, f"{NOT_JSON}: it nests too deeply") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise HTTPException(400, f"{NOT_JSON}: {exc}") from None
 
 
 class _ThreadedJSONRequest(Request):

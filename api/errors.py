@@ -137,6 +137,8 @@ def install(app: FastAPI) -> None:
         errors = list(exc.errors())
         if not errors:
             return error_response(422, "invalid request")
+        if errors[0].get("type") == "json_invalid":  # not JSON at all: a syntax error
+            return error_response(400, _validation_message(errors), "bad_request")
         return error_response(
             422, _validation_message(errors), "invalid", details=_jsonable(errors)
         )

@@ -199,8 +199,8 @@ OTHERS = [
     (
         "job malformed json",
         ("POST", "/v1/jobs", {"content": b"{", "headers": {"content-type": "application/json"}}),
-        422,
-        "",
+        400,
+        "not valid JSON",
     ),
     (
         "job unknown field",

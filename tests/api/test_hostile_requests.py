@@ -223,10 +223,12 @@ def test_body_parser_errors_are_json(client):
     """Malformed bodies of every kind the parsers meet get the service's JSON error body."""
     jobs = "/v1/jobs"
     as_json = {"content-type": "application/json"}
-    error = json_error(client.post(jobs, content=b"{", headers=as_json), 422, "not valid JSON")
-    assert error["code"] == "invalid"
+    error = json_error(client.post(jobs, content=b"{", headers=as_json), 400, "not valid JSON")
+    assert error["code"] == "bad_request"
     json_error(client.post(jobs, content=b"\xff\xfe{", headers=as_json), 400, "UTF-8")
     json_error(client.post(jobs, content=b"[" * 100_000, headers=as_json), 400, "nests")
+    digits = b'{"scene_id": "s1", "spp": ' + b"9" * 5000 + b"}"
+    json_error(client.post(jobs, content=digits, headers=as_json), 400, "not valid JSON")
     multipart = "multipart/form-data; boundary=b"
     bodies = [
         ("multipart/form-data", b"--b\r\n"),  # no boundary
