@@ -98,7 +98,6 @@ async def _stage(request: Request, ctx: Ctx, staged: Path) -> tuple[PurePosixPat
     files = staged / "files"
     files.mkdir()
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    name = None
     if ctype == "multipart/form-data":
         limit = ctx.settings.max_upload_bytes
         form = await request.form(
@@ -111,11 +110,7 @@ async def _stage(request: Request, ctx: Ctx, staged: Path) -> tuple[PurePosixPat
                 raise ApiError(
                     422, f"unknown form field {unknown[0]!r} (use scene, files, bundle, mesh, name)"
                 )
-            raw_name = form.get("name")
-            if raw_name is not None:
-                if not isinstance(raw_name, str) or len(raw_name) > 200:
-                    raise ApiError(422, "name: a text of at most 200 characters")
-                name = raw_name.strip() or None
+            name = scene_name(form.get("name"))
             scene, bundle, mesh = form.get("scene"), form.get("bundle"), form.get("mesh")
             extra = form.getlist("files")
             given = [
@@ -176,12 +171,13 @@ async def _stage(request: Request, ctx: Ctx, staged: Path) -> tuple[PurePosixPat
             return target, name or relative.stem, "mesh"
         finally:
             await form.close()
+    name = scene_name(request.query_params.get("name"))  # a raw body's name is in the query
     if ctype == "application/json":
         body = await request.body()
         if not body:
             raise ApiError(422, "the request body is empty")
         (files / "scene.json").write_bytes(body)
-        return PurePosixPath("scene.json"), request.query_params.get("name") or "scene", "json"
+        return PurePosixPath("scene.json"), name or "scene", "json"
     if ctype in ("application/zip", "application/x-zip-compressed"):
         archive = staged / "bundle.zip"
         with open(archive, "wb") as out:
@@ -189,12 +185,22 @@ async def _stage(request: Request, ctx: Ctx, staged: Path) -> tuple[PurePosixPat
                 out.write(chunk)
         names = await to_thread.run_sync(extract_bundle, archive, files, ctx.settings)
         archive.unlink()
-        return find_entry(files, names), request.query_params.get("name") or "bundle", "bundle"
+        return find_entry(files, names), name or "bundle", "bundle"
     raise ApiError(
         415,
         f"unsupported content type {ctype or '(none)'!r}: use multipart/form-data, "
         "application/json or application/zip",
     )
+
+
+def scene_name(raw) -> str | None:
+    """An upload's ``name`` (a form field, or the query of a raw body): at most 200 characters
+    (422 beyond, never cut), None when absent or blank."""
+    if raw is None:
+        return None
+    if not isinstance(raw, str) or len(raw) > 200:
+        raise ApiError(422, "name: a text of at most 200 characters")
+    return raw.strip() or None
 
 
 def _stem(filename: str | None) -> str | None:

@@ -167,11 +167,15 @@ def call(method: str, path: str, timeout: float = 30.0, **kwargs) -> Send:
 
 
 def raw(head: str, body: bytes = b"", timeout: float = 5.0, shut_write: bool = False) -> Send:
-    """Raw bytes: ``head`` (request line and headers, ``{host}`` and fixtures filled in)."""
+    """Raw bytes: ``head`` (request line and headers, ``{host}`` and fixtures filled in, and
+    the target's token)."""
 
     def send(target: Target) -> Answer:
         host = target.url.removeprefix("http://")
-        text = head.format(host=host, **target.fixtures).replace("\n", "\r\n") + "\r\n\r\n"
+        text = head.format(host=host, **target.fixtures)
+        if target.token is not None:  # as Target.request: the client's token, if it has one
+            text += f"\nAuthorization: Bearer {target.token}"
+        text = text.replace("\n", "\r\n") + "\r\n\r\n"
         return target.raw(text.encode() + body, timeout, shut_write)
 
     return send

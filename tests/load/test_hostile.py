@@ -21,53 +21,7 @@ from bench.load.hostile_uploads import TOKEN
 
 TOLERANCE_MIB = hostile.DEFAULT_RSS_TOLERANCE_MIB
 
-PATHS = "item 10 (error messages name the server's upload directory)"
-PARSER = "item 10 (request parser errors: the same answer as malformed JSON)"
-REFERENCES = "item 9 (reference checks as trimesh parses OBJ/MTL/GLB)"
-COMMITS = "item 4 (commits checked as strictly as uploads)"
-ALLOW = "item 10 (405 Allow headers)"
-AUTH = "item 2 (auth before the body is read)"
 FAILING_TODAY = {
-    **dict.fromkeys(
-        [
-            "upload: JSON array", "upload: JSON null", "upload: JSON cut short",
-            "upload: a zip sent as JSON", "upload: NaN", "upload: Infinity", "upload: 1e999",
-            "upload: spp of 5000 digits", "upload: nested 100k deep", "upload: unknown key",
-            "upload: box of size 0", "upload: 100k-character object name",
-        ],
-        PATHS,
-    ),
-    **dict.fromkeys(
-        [
-            "mesh: OBJ mtllib after a tab", "mesh: OBJ mtllib inside a comment",
-            "bundle: MTL MAP_KD ../ in capitals", "bundle: MTL map_Kd after a tab",
-            "bundle: mtllib not named .mtl",
-        ],
-        REFERENCES,
-    ),
-    **dict.fromkeys(
-        [
-            "commit: translate 1e38", "commit: update_vertices all zero-area",
-            "commit: update_vertices 1e38 away", "commit: add_mesh of zero-area triangles",
-        ],
-        COMMITS,
-    ),
-    **dict.fromkeys(["job: spp of 5000 digits", "job: body nested 100k deep", "job: not UTF-8"],
-                    PARSER),
-    **dict.fromkeys(
-        [
-            "method: PUT /v1/scenes", "method: POST /v1/scenes/{scene}", "method: DELETE /v1/jobs",
-            "method: DELETE /v1/sessions",
-        ],
-        ALLOW,
-    ),
-    **dict.fromkeys(["auth: 400k poses without a token", "auth: job headers alone, no token"],
-                    AUTH),
-    "mesh: GLB buffer ../": REFERENCES + " and " + PATHS,
-    "upload: 100k-character material name": "item 10 (names in scene JSON bounded)",
-    "upload: 5000-character name query": "no item yet: a raw upload's ?name= is cut to 200 "
-    "characters silently, a multipart name over 200 is refused",
-    "multipart: cut short": PARSER + ": a multipart body without its closing boundary",
     "session: 4K (over the session size limit)": "item 10 (session size limit; its memory "
     "released on close)",
 }  # fmt: skip
