@@ -545,6 +545,7 @@ class RenderService:
     def _close_session(self, live: LiveSession, reason: str) -> None:
         live.closed = True
         live.closed_reason = reason
+        live.jpeg = None
         self.sessions.pop(live.id, None)
         if live.session is not None:
             try:
