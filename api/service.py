@@ -68,6 +68,8 @@ log = logging.getLogger("tilerender.api")
 
 NODE_RESCAN_SECONDS = 5.0
 """How often the render thread looks for Ray nodes without a tracer (nodes that joined)."""
+IDLE_REFRESH_SECONDS = 0.5
+"""How often an idle render thread refreshes what /v1/cluster shows (a tracer that died)."""
 
 
 def session_factory_for(settings: Settings) -> Callable[[], type]:
@@ -143,6 +145,7 @@ class RenderService:
             1, thread_name_prefix="tilerender-encode"
         )
         self.cluster_info: dict = {"tracers": [], "last_frame": None}
+        self._cluster_refreshed = 0.0
         self.frames_rendered = 0
 
     # Lifecycle ---------------------------------------------------------------------------------
@@ -227,6 +230,8 @@ class RenderService:
                         run, self.run = self.run, None
                         self._fail(run.id, f"internal error: {exc}")
                 if not worked:
+                    if time.monotonic() - self._cluster_refreshed >= IDLE_REFRESH_SECONDS:
+                        self._refresh_cluster_info()
                     with self._wake:
                         if not self._calls and not self._stop.is_set():
                             self._wake.wait(0.1)
@@ -335,6 +340,7 @@ class RenderService:
             self._refresh_cluster_info()
 
     def _refresh_cluster_info(self) -> None:
+        self._cluster_refreshed = time.monotonic()
         try:
             tracers = self.coordinator.tracers()
         except Exception:
@@ -552,6 +558,7 @@ class RenderService:
     def _close_session(self, live: LiveSession, reason: str) -> None:
         live.closed = True
         live.closed_reason = reason
+        live.jpeg = None
         self.sessions.pop(live.id, None)
         if live.session is not None:
             try:

@@ -70,6 +70,12 @@ class Settings(BaseModel):
     max_time_budget: float = Field(default=3600.0, gt=0)
     max_queue: int = Field(default=16, ge=1, description="queued and running jobs")
     max_sessions: int = Field(default=4, ge=1)
+    max_session_pixels: int = Field(
+        default=1280 * 720,
+        ge=64,
+        description="width x height of one interactive session at most (every frame of a "
+        "session renders, blends and encodes at its full size, on the one render thread)",
+    )
     max_ops: int = Field(
         default=1000, ge=1, le=MAX_COMMIT_OPS, description="operations in one commit"
     )

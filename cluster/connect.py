@@ -2,13 +2,16 @@
 
 ``connect()`` with no address starts a private local Ray (``ray.init(address="local")``: it
 never attaches to some other cluster found on the machine) with the dashboard off and the
-workers' output kept out of the caller's terminal. ``"auto"`` joins the cluster ``ray start``
-left on this machine; ``"host:port"`` (or ``"ray://host:port"`` for Ray Client) joins that
-one. Before handing an address to Ray, we check that something answering like a gRPC server
-listens there (a TCP connect and an HTTP/2 handshake, a few seconds at most): Ray itself keeps
-retrying an unreachable address for many minutes. Joining ``host:port`` also needs a Ray node
-(a raylet) on this machine, which ``ray start --address`` provides: without one, Ray waits a
-minute or two before it fails, so we check for a raylet process first and say what to do.
+workers' output kept out of the caller's terminal. Its node address is 127.0.0.1, so its GCS,
+raylet, agents and workers listen on the loopback interface only: nothing off the machine can
+reach (or join) the embedded Ray, whatever host the service itself listens on. ``"auto"``
+joins the cluster ``ray start`` left on this machine; ``"host:port"`` (or ``"ray://host:port"``
+for Ray Client) joins that one. Before handing an address to Ray, we check that something
+answering like a gRPC server listens there (a TCP connect and an HTTP/2 handshake, a few
+seconds at most): Ray itself keeps retrying an unreachable address for many minutes. Joining
+``host:port`` also needs a Ray node (a raylet) on this machine, which ``ray start --address``
+provides: without one, Ray waits a minute or two before it fails, so we check for a raylet
+process first and say what to do.
 
 If Ray is already initialised in this process, ``connect()`` uses that session (an explicit
 ``host:port`` is still checked to be reachable) and says so in the returned
@@ -19,12 +22,15 @@ import logging
 import os
 import socket
 from dataclasses import dataclass
+from unittest import mock
 
 import psutil
 import ray
 
 from cluster.errors import ClusterUnreachable
 
+LOOPBACK = "127.0.0.1"
+"""The embedded Ray's node address: its servers listen on this interface only."""
 PROBE_TIMEOUT = 5.0
 """Seconds allowed for the TCP connect and handshake with a cluster's address."""
 
@@ -66,7 +72,7 @@ def connect(
         "logging_level": logging.ERROR if quiet else logging.INFO,
     }
     if not joining:
-        ray.init(address="local", num_cpus=num_cpus, **options)
+        _init_on_loopback(num_cpus=num_cpus, **options)
         return _current(started=True)
     probe(_resolve(address), tls=_tls())
     if not address.startswith("ray://") and address != "auto" and not local_raylet_running():
@@ -82,6 +88,17 @@ def connect(
             f"cannot join the Ray cluster at {address}: {str(error).splitlines()[0]}"
         ) from None
     return _current(started=False)
+
+
+def _init_on_loopback(**options) -> None:
+    """``ray.init`` of a local Ray whose node address is 127.0.0.1. Ray's servers bind to the
+    node address, or to every interface when it is not loopback; ``ray.init`` turns a loopback
+    ``_node_ip_address`` into the machine's outward address (``resolve_ip_for_localhost``), so
+    that rewrite is switched off while the node starts."""
+    from ray._private import services
+
+    with mock.patch.object(services, "resolve_ip_for_localhost", lambda host: host):
+        ray.init(address="local", _node_ip_address=LOOPBACK, **options)
 
 
 def local_raylet_running() -> bool:

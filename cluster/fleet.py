@@ -6,6 +6,11 @@ By default one tracer runs per Ray node with CPUs, using all of that node's CPUs
 are spread. A tracer is ready once it answered its probe, a snapshot of the coordinator's own
 graph queued on it when it starts or restarts (Ray restarts a dead actor, ``max_restarts=-1``);
 one placed on a new node then loads its kernels (``warm_up``) before it gets work.
+
+A tracer whose process dies while it has no call in flight is noticed without a render: the
+view of the fleet (:meth:`Fleet.tracers`) asks Ray's GCS, at most every ``LIVENESS_INTERVAL``
+seconds, which actors are not alive or were restarted since they were seen ready, and treats
+those as a failed call would (``recovering`` until its probe answers).
 """
 
 import itertools
@@ -18,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import ray
+from ray._private import state as ray_state
 from ray.exceptions import ActorDiedError, RayError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
@@ -30,6 +36,8 @@ log = logging.getLogger("tilerender.cluster")
 
 PROBE_INTERVAL = 1.0
 """Least seconds between two liveness probes of a tracer that is down."""
+LIVENESS_INTERVAL = 0.5
+"""Least seconds between two looks at the GCS's actor table for tracers that died idle."""
 COMING = ("starting", "warming", "recovering")
 """States of a tracer that will be ready without being asked."""
 
@@ -64,6 +72,8 @@ class TracerSlot:
     """The pending ``warm_up`` call of a tracer placed on a new node."""
     pool_blind: bool = False
     """It could not open a shared pool file (until it is seen on another node)."""
+    restarts: int | None = None
+    """How often Ray had restarted the actor when it was first seen ready (None: not yet)."""
 
     @property
     def pid(self) -> int | None:
@@ -94,6 +104,7 @@ class Fleet:
         self._per_node = tracers is None
         self._declined: set[str] = set()
         self._cpus_per_tracer = cpus_per_tracer
+        self._liveness_at = -math.inf
         placements = self._placements(tracers, cpus_per_tracer)
         self._default_cpus = placements[-1][0]
         delays = list(delays or [])
@@ -279,6 +290,33 @@ class Fleet:
         slot.state = "ready"
         slot.last_done = now
 
+    def check_liveness(self) -> list[str]:
+        """Mark lost the ready tracers Ray reports not alive or restarted since they were
+        first seen ready (one query of the GCS's actor table, at most every
+        ``LIVENESS_INTERVAL`` s); returns their ids."""
+        now = time.perf_counter()
+        watched = [s for s in self.slots if s.state in ("ready", "warming")]
+        if not watched or now - self._liveness_at < LIVENESS_INTERVAL:
+            return []
+        self._liveness_at = now
+        try:
+            table = ray_state.actors()
+        except Exception as error:  # the GCS briefly unreachable: the next look will tell
+            log.info("cannot read the actor table: %s", first_line(error))
+            return []
+        lost = []
+        for slot in watched:
+            actor = table.get(slot.handle._actor_id.hex())
+            if actor is None:
+                continue
+            restarts = int(actor.get("NumRestarts", 0))
+            if slot.restarts is None:
+                slot.restarts = restarts
+            if actor.get("State") != "ALIVE" or restarts > slot.restarts:
+                self.failed(slot, ClusterError(f"Ray reports the actor {actor.get('State')}"))
+                lost.append(slot.id)
+        return lost
+
     def failed(self, slot: TracerSlot, error: Exception) -> None:
         """A call failed because the tracer's process died: Ray restarts it; queue a snapshot so
         it is resynced (and known to be back) as soon as it is up."""
@@ -290,6 +328,7 @@ class Fleet:
         slot.synced.clear()
         slot.failed_at = now
         slot.failures += 1
+        slot.restarts = None
         self._send_probe(slot, now)
 
     # Views -----------------------------------------------------------------------------------
@@ -323,8 +362,10 @@ class Fleet:
             self.poll()
 
     def tracers(self) -> list[dict]:
-        """Every tracer started: id, state, CPUs, synced version, pid, node, failures seen."""
+        """Every tracer started: id, state, CPUs, synced version, pid, node, failures seen (a
+        tracer that died idle shows within ``LIVENESS_INTERVAL`` s)."""
         self.poll()
+        self.check_liveness()
         return [
             {
                 "id": s.id,

@@ -240,8 +240,12 @@ class InteractiveSession:
         }
 
     def close(self) -> None:
+        """Stop, and let go of every image buffer (the blended image, the last frame shown and
+        the coordinator's frame behind it), even while something still holds the session."""
         self.closed = True
         self._image = None
+        self._last = None
+        self.last_frame = None
 
 
 def _upscale(image: np.ndarray, height: int, width: int) -> np.ndarray:

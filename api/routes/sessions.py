@@ -5,6 +5,7 @@ the session renders the scene's current version every frame.
 """
 
 import asyncio
+import math
 
 import pydantic
 from anyio import to_thread
@@ -46,6 +47,12 @@ def _live(ctx: Ctx, session_id: str) -> LiveSession:
     return live
 
 
+def _example_size(pixels: int) -> str:
+    """The largest 16:9 size of at most ``pixels`` pixels, as ``WxH``."""
+    height = math.isqrt(pixels * 9 // 16)
+    return f"{height * 16 // 9}x{height}"
+
+
 def _camera(base: fmt.Camera, pose: CameraPose | None, width: int, height: int) -> fmt.Camera:
     changes = {} if pose is None else pose.model_dump(exclude_none=True)
     try:
@@ -67,6 +74,13 @@ async def open_session(body: SessionCreate, ctx: Ctx, response: Response) -> Ses
         raise ApiError(
             422,
             f"resolution {width}x{height} is over the limit of {s.max_width}x{s.max_height}",
+            "limit",
+        )
+    if width * height > s.max_session_pixels:
+        raise ApiError(
+            422,
+            f"a session of {width}x{height} has {width * height} pixels, more than the limit of "
+            f"{s.max_session_pixels} ({_example_size(s.max_session_pixels)} at 16:9)",
             "limit",
         )
     if not ctx.service.ready:

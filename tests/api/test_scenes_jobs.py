@@ -4,6 +4,8 @@ error and time budget; progress, events, cancel, results in three formats."""
 
 import io
 import json
+import os
+import signal
 import time
 
 import numpy as np
@@ -311,6 +313,25 @@ def test_cluster_and_balancer(client):
         tracer = info["tracers"][0]
         assert tracer["lines_last_frame"] == info["last_frame"]["height"]
         assert tracer["idle_percent"] == 0.0
+
+
+def test_a_tracer_killed_while_idle_shows_within_two_seconds(client):
+    """SIGKILL of the idle tracer's process: /v1/cluster stops calling it ready (or shows the
+    restarted process) within two seconds, with no render to notice it; it comes back."""
+    tracer = client.get("/v1/cluster").json()["tracers"][0]
+    assert tracer["state"] == "ready" and tracer["pid"] is not None
+    os.kill(tracer["pid"], signal.SIGKILL)
+    killed = time.monotonic()
+    seen = tracer
+    while seen["state"] == "ready" and seen["pid"] == tracer["pid"]:
+        assert time.monotonic() - killed < 2.0, "the killed tracer still shows as ready"
+        time.sleep(0.05)
+        seen = client.get("/v1/cluster").json()["tracers"][0]
+    assert seen["failures"] == tracer["failures"] + 1
+    while seen["state"] != "ready":  # Ray restarts it; its probe brings it back
+        assert time.monotonic() - killed < 120.0
+        time.sleep(0.2)
+        seen = client.get("/v1/cluster").json()["tracers"][0]
 
 
 def test_tiny_scene_helper_is_valid():

@@ -2,8 +2,10 @@
 the frames, stats, closing and idle expiry. (The endless MJPEG stream is read from a real
 server in test_live.py: the test client cannot end an infinite response.)"""
 
+import gc
 import io
 import time
+import weakref
 
 import numpy as np
 from PIL import Image
@@ -164,3 +166,38 @@ def test_jobs_and_sessions_share_the_cluster(client):
     assert seen >= 3
     assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "done"
     client.delete(f"/v1/sessions/{session['id']}")
+
+
+def test_a_session_over_the_pixel_limit_is_refused(client, settings_of):
+    scene = upload_tiny(client)
+    settings_of(client, max_session_pixels=48 * 32)
+    r = client.post("/v1/sessions", json={"scene_id": scene["id"], "width": 64, "height": 32})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["code"] == "limit"
+    assert "64x32 has 2048 pixels, more than the limit of 1536" in error["message"]
+    assert open_session(client, scene["id"])["width"] == 48  # 48x32: at the limit
+    assert client.get("/v1/sessions").json()["count"] >= 1
+
+
+def test_closing_a_session_lets_go_of_its_image_buffers(client):
+    """The session's blended image, the last frame shown, the coordinator's frame behind it
+    and the latest JPEG are all released on close, even though the session objects may stay
+    referenced (the render thread remembers the last worker it served)."""
+    scene = upload_tiny(client)
+    session = open_session(client, scene["id"])
+    next_frame(client, session["id"], 0)
+    service = client.app.state.ctx.service
+    live = service.sessions[session["id"]]
+
+    def close_and_watch(_coordinator):  # between two turns: no frame is being made
+        s = live.session
+        buffers = (s._image, s._last.image, s.last_frame.rgb)
+        refs = [weakref.ref(b) for b in buffers]
+        service._close_session(live, "closed")
+        return refs
+
+    refs = service.call(close_and_watch).result(timeout=60)
+    gc.collect()
+    assert [ref() is None for ref in refs] == [True, True, True]
+    assert live.jpeg is None and live.session.closed

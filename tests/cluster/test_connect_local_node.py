@@ -1,10 +1,13 @@
 """Joining a cluster by ``host:port`` needs a Ray node on this machine: without one,
-``connect`` says so at once instead of letting Ray wait a minute or two."""
+``connect`` says so at once instead of letting Ray wait a minute or two. The embedded Ray
+listens on the loopback interface only."""
 
+import ipaddress
 import socket
 import struct
 import threading
 
+import psutil
 import pytest
 import ray
 
@@ -48,3 +51,25 @@ def test_the_raylet_check_sees_a_running_node():
     finally:
         if started and connection.started:
             disconnect()
+
+
+def test_the_embedded_ray_listens_on_the_loopback_interface_only():
+    if ray.is_initialized():
+        disconnect()
+    connection = connect(num_cpus=1)
+    try:
+        assert connection.started
+        assert connection.address.startswith("127.0.0.1:")
+        assert [n["NodeManagerAddress"] for n in ray.nodes()] == ["127.0.0.1"]
+        me = psutil.Process()
+        ours = {p.pid for p in [me, *me.children(recursive=True)]}
+        listening = {
+            (c.laddr.ip, c.laddr.port)
+            for c in psutil.net_connections("inet")
+            if c.status == psutil.CONN_LISTEN and c.pid in ours
+        }
+        assert listening  # the GCS and the raylet at least
+        assert all(ipaddress.ip_address(ip).is_loopback or ip == "::ffff:127.0.0.1"
+                   for ip, _ in listening), listening  # fmt: skip
+    finally:
+        disconnect()

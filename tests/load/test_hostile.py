@@ -5,9 +5,7 @@ answering and the API's RSS back within ``TOLERANCE_MIB`` of its baseline after 
 
 One server here, with a token: the corpus's cases send it, the auth cases their own headers
 (``python bench/load/hostile.py`` runs them on a second server, and also the heavy cases left
-out of the quick subset: 400k-entry lists, 64 MiB bodies, a stalled body). Cases the code of
-today answers wrongly are strict xfails naming the item of issue #22 that fixes them, so they
-turn into failures to remove from ``FAILING_TODAY`` when the fix lands.
+out of the quick subset: 400k-entry lists, 64 MiB bodies, a stalled body).
 """
 
 import dataclasses
@@ -21,19 +19,9 @@ from bench.load.hostile_uploads import TOKEN
 
 TOLERANCE_MIB = hostile.DEFAULT_RSS_TOLERANCE_MIB
 
-FAILING_TODAY = {
-    "session: 4K (over the session size limit)": "item 10 (session size limit; its memory "
-    "released on close)",
-}  # fmt: skip
-
 
 def params(cases: list[Case]) -> list:
-    out = []
-    for case in cases:
-        reason = FAILING_TODAY.get(case.name)
-        marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
-        out.append(pytest.param(case, id=case.name, marks=marks))
-    return out
+    return [pytest.param(case, id=case.name) for case in cases]
 
 
 @dataclasses.dataclass

@@ -57,6 +57,27 @@ def test_edge_cases():
     np.testing.assert_array_equal(portable.elementwise(math.sqrt, [[4.0, 9.0]]), [[2.0, 3.0]])
 
 
+def test_small_matrices_in_python_floats_give_the_vector_codes_bits():
+    """matmul and det3 of one small matrix take the Python-float path; a stack of one (the
+    vector code) must give the same bits, for ordinary, huge (overflowing) and odd-shaped
+    values."""
+    rng = np.random.default_rng(11)
+    cases = [(random_affine(rng), random_affine(rng)) for _ in range(200)]
+    cases += [(rng.normal(size=(3, 3)) * 1e300, rng.normal(size=(3, 3)) * 1e10) for _ in range(20)]
+    cases += [(rng.normal(size=(2, 4)), rng.normal(size=(4, 3))) for _ in range(20)]
+    cases.append((np.full((3, 3), np.inf), np.zeros((3, 3))))
+    with np.errstate(all="ignore"):
+        for a, b in cases:
+            small = portable.matmul(a, b)
+            stacked = portable.matmul(a[None], b[None])[0]
+            assert small.dtype == np.float64 and small.shape == stacked.shape
+            assert small.tobytes() == stacked.tobytes()
+            if a.shape[0] >= 3 and a.shape[1] >= 3:
+                det = portable.det3(a)
+                assert isinstance(det, float)
+                assert np.float64(det).tobytes() == portable.det3(a[None])[0].tobytes()
+
+
 PROBE = """
 import hashlib, math, numpy as np
 from tracer.maths import portable

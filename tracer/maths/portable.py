@@ -45,15 +45,38 @@ def cross(a, b) -> np.ndarray:
     return np.array([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx])
 
 
+SMALL = 16
+"""Matrices of at most this many entries are multiplied in Python floats (the same IEEE
+operations in the same order, so the same bits): numpy's per-call overhead is most of the cost
+of a 4x4 product, and scene loading and compilation make several per object."""
+
+
 def matmul(a, b) -> np.ndarray:
     """``a @ b`` for 2-D float arrays (or a stack of them), summed over k in order."""
     a = np.asarray(a, np.float64)
     b = np.asarray(b, np.float64)
+    if a.ndim == b.ndim == 2 and 0 < a.shape[1] == b.shape[0] and max(a.size, b.size) <= SMALL:
+        return _small_matmul(a.tolist(), b.tolist())
     with np.errstate(over="ignore", invalid="ignore"):
         out = a[..., :, 0:1] * b[..., 0:1, :]
         for k in range(1, a.shape[-1]):
             out = out + a[..., :, k : k + 1] * b[..., k : k + 1, :]
     return out
+
+
+def _small_matmul(a: list, b: list) -> np.ndarray:
+    """``matmul`` of two small matrices given as lists of rows of Python floats."""
+    inner = range(1, len(b))
+    out = []
+    for row in a:
+        line = []
+        for j in range(len(b[0])):
+            total = row[0] * b[0][j]
+            for k in inner:
+                total = total + row[k] * b[k][j]
+            line.append(total)
+        out.append(line)
+    return np.array(out, np.float64)
 
 
 def chain(*matrices) -> np.ndarray:
@@ -87,6 +110,9 @@ def transform_vectors(vectors, linear) -> np.ndarray:
 def det3(m) -> np.ndarray | float:
     """Determinant of the leading 3x3 block of a matrix (or of each in a stack)."""
     m = np.asarray(m, np.float64)
+    if m.ndim == 2:  # one matrix: Python floats, the same operations (see ``SMALL``)
+        (a, b, c, *_), (d, e, f, *_), (g, h, i, *_) = m[:3].tolist()
+        return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
     a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
     d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
     g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
