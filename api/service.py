@@ -1,6 +1,7 @@
 """The render service: one thread owns the coordinator; jobs, sessions and calls take turns.
 
-A job's steps are ``api.job_run``'s, a session's state ``api.live_session``'s.
+The job queue and a job's turns are ``api.job_queue``'s (its steps ``api.job_run``'s), a
+session's state ``api.live_session``'s.
 
 The coordinator is not thread-safe, so exactly one thread, ``tilerender-render``, creates it,
 drives it and closes it. The event loop never waits for it: endpoints read job state from
@@ -15,9 +16,9 @@ submission order) and every watched session. A session's turn is one
 ``InteractiveSession.render_next()``; a job's turn is one bounded run of its current frame
 (``api.job_run``, ``cluster.turns``: about ``job_turn_seconds`` of work, half that while a
 session is watched, whatever the frame's size; its pixels are the same bits as a frame
-rendered whole, the command line's). So calls,
-cancels and sessions wait at most one such run, and a job advances at least once per round. A
-cancelled job stops after the run in progress. Sessions nobody watches (no stream client and
+rendered whole, the command line's). So calls, cancels and sessions wait at most one such
+run, and a job advances at least once per round. A cancelled job stops after the run in
+progress. Sessions nobody watches (no stream client and
 no request for ``session_render_grace`` seconds) are skipped; idle ones expire.
 
 **Graphs.** The thread names the graph of whatever it renders next in each coordinator call;
@@ -37,11 +38,9 @@ import collections
 import concurrent.futures
 import gc
 import logging
-import shutil
 import signal
 import threading
 import time
-import traceback
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -51,17 +50,14 @@ import numpy as np
 from api.cluster_info import frame_report, renice_local_tracers
 from api.errors import ApiError
 from api.events import EventHub
-from api.job_run import JobRun, job_dir
+from api.job_queue import JobQueue
+from api.job_run import JobRun
 from api.live_session import LiveSession
 from api.scenes import SceneEntry, SceneRepository
 from api.settings import Settings
-from api.store import TERMINAL, Store
+from api.store import Store
 from cluster.scene_graph import SceneGraph
-from tracer.errors import SceneError
-from tracer.io.files import write_atomic
-from tracer.io.images import write_image
 from tracer.scene import format as fmt
-from tracer.scene.codec import decode_state, encode_state
 from tracer.scene.model import SceneState
 
 log = logging.getLogger("tilerender.api")
@@ -132,9 +128,7 @@ class RenderService:
         self._stop = threading.Event()
         self._wake = threading.Condition()
         self._calls: collections.deque = collections.deque()
-        self._queue: collections.deque[str] = collections.deque()
-        self._cancelled: set[str] = set()
-        self.run: JobRun | None = None
+        self.jobs = JobQueue(settings, store, events, metrics, self._notify)
         self.sessions: dict[str, LiveSession] = {}
         self._turn = 0
         self._previous = None
@@ -155,7 +149,7 @@ class RenderService:
         # Ray's core installs its own SIGTERM handler when it starts (it prints a stack and
         # exits at once); the server's handler (a graceful shutdown) is put back afterwards.
         self._sigterm = signal.getsignal(signal.SIGTERM)
-        self._recover_jobs()
+        self.jobs.recover()
         self._thread = threading.Thread(target=self._main, name="tilerender-render", daemon=True)
         self._thread.start()
 
@@ -169,34 +163,6 @@ class RenderService:
     def _notify(self) -> None:
         with self._wake:
             self._wake.notify_all()
-
-    def _recover_jobs(self) -> None:
-        """Queue unfinished jobs again (or fail them, with the reason)."""
-        for record in self.store.unfinished_jobs():
-            if not self.settings.resume_jobs:
-                reason = "the service restarted while the job was unfinished (resume_jobs is off)"
-                self._fail(record["id"], reason)
-                continue
-            snapshot = job_dir(self.settings, record["id"]) / "scene.tls"
-            if not snapshot.is_file():
-                self._fail(
-                    record["id"], "the service restarted and the job's scene snapshot is missing"
-                )
-                continue
-            self.store.update_job(record["id"], status="queued", resumed=record["resumed"] + 1)
-            self._queue.append(record["id"])
-            log.info(
-                "job %s queued again after a restart (%d frames done)",
-                record["id"],
-                record["frames_done"],
-            )
-
-    def _fail(self, job_id: str, reason: str) -> None:
-        if self.store.finish_job(job_id, "failed", reason):
-            self._count_job("failed")
-            self.events.publish(
-                job_id, "error", {"job": job_id, "status": "failed", "message": reason}
-            )
 
     def _main(self) -> None:
         try:
@@ -226,9 +192,7 @@ class RenderService:
                 except Exception as exc:  # a bug or a full disk: fail the work, keep serving
                     log.exception("render thread: unexpected error")
                     worked = True
-                    if self.run is not None:
-                        run, self.run = self.run, None
-                        self._fail(run.id, f"internal error: {exc}")
+                    self.jobs.fail_running(f"internal error: {exc}")
                 if not worked:
                     if time.monotonic() - self._cluster_refreshed >= IDLE_REFRESH_SECONDS:
                         self._refresh_cluster_info()
@@ -302,21 +266,18 @@ class RenderService:
     def _turn_once(self) -> bool:
         """Give one turn to the next job or watched session; False if nothing wanted one."""
         now = time.monotonic()
-        workers: list = []
-        if self.run is None:
-            self._start_next_job()
-        if self.run is not None:
-            workers.append(self.run)
-        workers += [s for s in self.live_sessions() if s.watched(now)]
+        run = self.jobs.current()
+        sessions = [s for s in self.live_sessions() if s.watched(now)]
+        workers: list = ([run] if run is not None else []) + sessions
         if not workers:
             return False
         self._turn = (self._turn + 1) % len(workers)
         worker = workers[self._turn]
         if isinstance(worker, JobRun):
             # Watched sessions share the thread: the job's turns are halved for their latency.
-            share = 2.0 if len(workers) > 1 else 1.0
-            worker.sizer.seconds = self.settings.job_turn_seconds / share
-            self._job_turn(worker)
+            share = 2.0 if sessions else 1.0
+            seconds = self.settings.job_turn_seconds / share
+            self.jobs.turn(self.coordinator, seconds, self._record_frame)
         else:
             self._session_turn(worker)
         self._previous = worker
@@ -364,138 +325,6 @@ class RenderService:
             self.metrics.frame_seconds.labels(kind).observe(frame.wall_seconds)
             self.metrics.idle.set(frame.idle_percent)
             self.metrics.rays.labels(kind).inc(report["rays"])
-
-    # Jobs --------------------------------------------------------------------------------------
-
-    def submit(self, job_id: str) -> None:
-        self._queue.append(job_id)
-        self._notify()
-
-    def cancel(self, job_id: str) -> None:
-        self._cancelled.add(job_id)
-        self._notify()
-
-    def queue_length(self) -> int:
-        return len(self._queue) + (1 if self.run is not None else 0)
-
-    def progress(self, job_id: str) -> dict | None:
-        run = self.run
-        if run is not None and run.id == job_id:
-            return run.progress()
-        return None
-
-    def queue_position(self, job_id: str) -> int | None:
-        """Jobs that start before a queued job (0: it is next), None if it is not queued."""
-        waiting = [j for j in list(self._queue) if j not in self._cancelled]
-        return waiting.index(job_id) if job_id in waiting else None
-
-    def _start_next_job(self) -> None:
-        while self._queue:
-            job_id = self._queue.popleft()
-            record = self.store.job(job_id)
-            if record is None or record["status"] in TERMINAL or job_id in self._cancelled:
-                self._cancelled.discard(job_id)
-                continue
-            try:
-                state = decode_state((job_dir(self.settings, job_id) / "scene.tls").read_bytes())
-                done = {f["frame"] for f in self.store.frames(job_id)}
-                run = JobRun(record, state, done, self.settings, self.settings.job_turn_seconds)
-            except (OSError, SceneError, ValueError) as exc:
-                self._fail(job_id, f"the job cannot start: {exc}")
-                continue
-            if not self.store.start_job(job_id):  # cancelled since it was read
-                self._cancelled.discard(job_id)
-                continue
-            self.events.publish(
-                job_id,
-                "status",
-                {"job": job_id, "status": "running", "resumed": bool(record["resumed"])},
-            )
-            self.run = run
-            if run.finished:
-                self._finish_run(run)
-            return
-
-    def _drop_run(self, run: JobRun) -> None:
-        """Stop a cancelled job: no further turn renders any of it."""
-        self._cancelled.discard(run.id)
-        run.close()
-        self.run = None
-
-    def _job_turn(self, run: JobRun) -> None:
-        if run.id in self._cancelled:
-            self._drop_run(run)
-            return
-        try:
-            result = run.step(self.coordinator)
-        except Exception as exc:
-            log.warning("job %s failed: %s", run.id, exc)
-            log.debug("%s", traceback.format_exc())
-            self.run = None
-            message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            self._fail(run.id, f"rendering failed: {message}")
-            return
-        self._record_frame(run.last_frame, "job")
-        run.last_frame = None
-        if run.id in self._cancelled:  # cancelled while this turn rendered: drop the frame
-            self._drop_run(run)
-            return
-        if result is None:
-            self._publish_progress(run)
-            return
-        spec, image, info = result
-        path = job_dir(self.settings, run.id) / f"frame_{spec.number:06d}.npy"
-        write_image(path, image)
-        position = next(i for i, f in enumerate(run.frames) if f.number == spec.number)
-        self.store.add_frame(
-            run.id,
-            spec.number,
-            position,
-            info["spp"],
-            info["seconds"],
-            path.name,
-            info["error_estimate"],
-        )
-        self.events.publish(
-            run.id,
-            "frame",
-            {
-                "job": run.id,
-                "frame": spec.number,
-                "spp": info["spp"],
-                "seconds": round(info["seconds"], 4),
-                "error_estimate": info["error_estimate"],
-                "url": f"/v1/jobs/{run.id}/frames/{spec.number}",
-            },
-        )
-        self._publish_progress(run)
-        if run.finished:
-            self._finish_run(run)
-
-    def _publish_progress(self, run: JobRun) -> None:
-        self.events.publish(run.id, "progress", {"job": run.id, **run.progress()})
-
-    def _finish_run(self, run: JobRun) -> None:
-        self.run = None
-        if self.store.finish_job(run.id, "done"):
-            self._count_job("done")
-            self.events.publish(
-                run.id, "done", {"job": run.id, "status": "done", "frames": len(run.frames)}
-            )
-
-    def _count_job(self, status: str) -> None:
-        if self.metrics is not None:
-            self.metrics.jobs.labels(status).inc()
-
-    def save_job_state(self, job_id: str, state: SceneState) -> None:
-        """The scene as the job will render it, beside its results (before it is queued)."""
-        directory = job_dir(self.settings, job_id)
-        directory.mkdir(parents=True, exist_ok=True)
-        write_atomic(directory / "scene.tls", encode_state(state))
-
-    def drop_job_state(self, job_id: str) -> None:
-        """Remove what :meth:`save_job_state` wrote for a job that was not admitted."""
-        shutil.rmtree(job_dir(self.settings, job_id), ignore_errors=True)
 
     # Queries ---------------------------------------------------------------------------------
 

@@ -40,7 +40,7 @@ def cluster_public(ctx: Ctx) -> ClusterPublic:
         balancers=sorted(BALANCERS),
         tracers=tracers,
         last_frame=info.get("last_frame"),
-        queue_length=service.queue_length(),
+        queue_length=service.jobs.queue_length(),
         sessions=len(service.live_sessions()),
         frames_rendered=service.frames_rendered,
     )

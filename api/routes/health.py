@@ -33,7 +33,7 @@ async def metrics(ctx: Ctx) -> Response:
     """Prometheus metrics."""
     m = ctx.metrics
     service = ctx.service
-    m.queue.set(service.queue_length())
+    m.queue.set(service.jobs.queue_length())
     m.sessions.set(len(service.live_sessions()))
     m.ready.set(1 if service.ready else 0)
     m.tracers.set(sum(1 for t in service.cluster_info.get("tracers", []) if t["state"] == "ready"))

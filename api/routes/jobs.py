@@ -38,7 +38,7 @@ def _frame_urls(job_id: str, frame: int) -> dict[str, str]:
 def job_public(ctx: Ctx, record: dict, with_frames: bool = False) -> JobPublic:
     """A job as the API shows it: its record, its live progress while it runs (else what its
     finished frames add up to), its place in the queue while queued."""
-    live = ctx.service.progress(record["id"])
+    live = ctx.service.jobs.progress(record["id"])
     finished = ctx.store.frames(record["id"]) if with_frames or live is None else []
     if live is not None:
         progress = Progress(**live)
@@ -67,7 +67,7 @@ def job_public(ctx: Ctx, record: dict, with_frames: bool = False) -> JobPublic:
         ]
     fields = {k: record[k] for k in JobPublic.model_fields if k in record}
     if record["status"] == "queued":
-        fields["queue_position"] = ctx.service.queue_position(record["id"])
+        fields["queue_position"] = ctx.service.jobs.queue_position(record["id"])
     return JobPublic(**fields, progress=progress, frames=frames)
 
 
@@ -154,7 +154,7 @@ async def submit_job(body: JobCreate, ctx: Ctx, response: Response) -> JobPublic
     state = entry.graph.state
     request, posed, frames = await to_thread.run_sync(_plan, ctx, body, state)
     job_id = new_id("j")
-    await to_thread.run_sync(ctx.service.save_job_state, job_id, state)
+    await to_thread.run_sync(ctx.service.jobs.save_state, job_id, state)
     try:
         record = ctx.store.add_job(
             job_id,
@@ -167,7 +167,7 @@ async def submit_job(body: JobCreate, ctx: Ctx, response: Response) -> JobPublic
             max_active=ctx.settings.max_queue,
         )
     except QueueFull as full:
-        await to_thread.run_sync(ctx.service.drop_job_state, job_id)
+        await to_thread.run_sync(ctx.service.jobs.drop_state, job_id)
         raise ApiError(
             429,
             f"the job queue is full ({full.active} jobs queued or running); try again later",
@@ -175,7 +175,7 @@ async def submit_job(body: JobCreate, ctx: Ctx, response: Response) -> JobPublic
             {"Retry-After": "10"},
         ) from None
     ctx.metrics.jobs_submitted.inc()
-    ctx.service.submit(job_id)
+    ctx.service.jobs.submit(job_id)
     response.headers["Location"] = f"/v1/jobs/{job_id}"
     return job_public(ctx, record)
 
@@ -205,7 +205,7 @@ async def cancel_job(job_id: str, ctx: Ctx) -> JobPublic:
     if record["status"] in TERMINAL:
         raise ApiError(409, f"job {job_id} is already {record['status']}", "conflict")
     if ctx.store.finish_job(job_id, "cancelled", "cancelled on request"):
-        ctx.service.cancel(job_id)
+        ctx.service.jobs.cancel(job_id)
         ctx.metrics.jobs.labels("cancelled").inc()
         ctx.events.publish(job_id, "cancelled", {"job": job_id, "status": "cancelled"})
     return job_public(ctx, _job(ctx, job_id), with_frames=True)

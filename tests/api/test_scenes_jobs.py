@@ -285,7 +285,7 @@ def test_concurrent_submissions_cannot_pass_the_queue_limit(client, settings_of,
 
     scene = upload_tiny(client)
     ctx = client.app.state.ctx
-    monkeypatch.setattr(ctx.service, "submit", lambda job_id: None)  # admitted jobs stay queued
+    monkeypatch.setattr(ctx.service.jobs, "submit", lambda job_id: None)  # they stay queued
     active = len(ctx.store.unfinished_jobs())
     settings_of(client, max_queue=active + 3)
     body = {"scene_id": scene["id"], "spp": 1, "width": 16, "height": 16}
