@@ -119,7 +119,7 @@ def create_app(settings: Settings | None = None, session_factory=None) -> FastAP
 
     # Outermost last: metrics see every answer, CORS answers preflights, the token is checked
     # before anything reads the body, the body limit runs before any parsing.
-    app.add_middleware(Timeout, seconds=settings.request_timeout)
+    app.add_middleware(Timeout, settings=settings)
     app.add_middleware(BodyLimit, settings=settings)
     app.add_middleware(BearerAuth, settings=settings)
     if settings.cors_origins:

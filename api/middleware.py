@@ -133,17 +133,31 @@ class BodyLimit:
 
 
 class Timeout:
-    """Answer 504 when a request has not started its response within ``seconds`` (streams
-    start theirs at once, so they are never cut)."""
+    """Answer 504 when a request has not started its response within its time: an upload
+    (``POST /v1/scenes``: loading and compiling a big scene takes long) ``upload_timeout``,
+    anything else ``request_timeout`` (streams start theirs at once, so they are never cut).
+    A request whose body has not all arrived by then is the client's delay: 408."""
 
-    def __init__(self, app, seconds: float) -> None:
+    def __init__(self, app, settings, uploads: str = "/v1/scenes") -> None:
         self.app = app
-        self.seconds = seconds
+        self.settings = settings
+        self.uploads = uploads
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        upload = scope.get("method") == "POST" and scope.get("path") == self.uploads
+        seconds = self.settings.upload_timeout if upload else self.settings.request_timeout
         started = False
+        headers = Headers(scope=scope)
+        received = headers.get("content-length", "0") == "0" and "transfer-encoding" not in headers
+
+        async def watched_receive():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request" and not message.get("more_body", False):
+                received = True
+            return message
 
         async def watched_send(message):
             nonlocal started
@@ -151,8 +165,8 @@ class Timeout:
                 started = True
             await send(message)
 
-        task = asyncio.ensure_future(self.app(scope, receive, watched_send))
-        done, _ = await asyncio.wait({task}, timeout=self.seconds)
+        task = asyncio.ensure_future(self.app(scope, watched_receive, watched_send))
+        done, _ = await asyncio.wait({task}, timeout=seconds)
         if task in done or started:
             return await task
         task.cancel()
@@ -161,7 +175,10 @@ class Timeout:
         except (asyncio.CancelledError, Exception):
             pass
         if not started:
-            message = f"the request did not complete within {self.seconds:g} s"
+            if not received:
+                message = f"the request body did not arrive within {seconds:g} s"
+                return await _send_json(send, 408, error_body(408, message, "timeout"))
+            message = f"the request did not complete within {seconds:g} s"
             await _send_json(send, 504, error_body(504, message, "timeout"))
 
 

@@ -80,6 +80,9 @@ class Settings(BaseModel):
         default=1000, ge=1, le=MAX_COMMIT_OPS, description="operations in one commit"
     )
     request_timeout: float = Field(default=30.0, gt=0, description="seconds; not for streams")
+    upload_timeout: float = Field(
+        default=300.0, gt=0, description="seconds for a scene upload (loading and compiling)"
+    )
     job_turn_seconds: float = Field(
         default=0.5,
         gt=0,

@@ -529,7 +529,7 @@ def test_an_upload_the_renderer_refuses_leaves_no_scene(client):
 
 
 def test_an_upload_that_times_out_leaves_no_scene(ray_session, tmp_path, monkeypatch):
-    """An upload that outlasts the request timeout after its scene was kept (here while its
+    """An upload that outlasts the upload timeout after its scene was kept (here while its
     summary is described) is answered 504 and keeps nothing (it used to stay listed)."""
     import time
 
@@ -542,7 +542,7 @@ def test_an_upload_that_times_out_leaves_no_scene(ray_session, tmp_path, monkeyp
         return describe(self, entry)
 
     monkeypatch.setattr(SceneRepository, "summary", slow_summary)
-    with app_client(tmp_path / "data", request_timeout=0.5) as client:
+    with app_client(tmp_path / "data", upload_timeout=0.5) as client:
         r = client.post("/v1/scenes", files={"scene": ("scene.json", tiny_json())})
         assert r.status_code == 504, r.text
         time.sleep(1.5)  # past the worker thread's end, whatever it did

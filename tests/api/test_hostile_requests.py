@@ -247,3 +247,49 @@ def test_a_refused_cors_preflight_is_json():
         headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "POST"},
     )
     json_error(r, 400, "origin")
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "headers", "status"),
+    [
+        ("POST", "/v1/jobs", [(b"content-length", b"1000")], 408),  # the body stalls
+        ("GET", "/v1/jobs/j1", [], 504),  # the app is slow
+        ("POST", "/v1/scenes", [(b"content-length", b"10")], 200),  # an upload has longer
+    ],
+)
+def test_a_request_out_of_time_is_the_clients_408_or_the_services_504(
+    method, path, headers, status
+):
+    """A request whose body has not all arrived when its time is up is answered 408 (a stalled
+    client used to get the 504 of a slow service); an upload's time is ``upload_timeout``."""
+    import asyncio
+
+    from api.middleware import Timeout
+    from api.settings import Settings
+
+    async def app(scope, receive, send):
+        if method == "POST":
+            while (await receive()).get("more_body"):
+                pass
+        await asyncio.sleep(0.3)  # the service's own work
+        await send({"type": "http.response.start", "status": 200, "headers": []})
+        await send({"type": "http.response.body", "body": b""})
+
+    async def receive():
+        if method == "POST" and path == "/v1/jobs":
+            received.append(1)
+            if len(received) > 1:
+                await asyncio.sleep(10)  # the rest of the body never comes
+            return {"type": "http.request", "body": b"{", "more_body": True}
+        return {"type": "http.request", "body": b"x" * 10, "more_body": False}
+
+    received: list = []
+    sent: list = []
+
+    async def send(message):
+        sent.append(message)
+
+    settings = Settings(request_timeout=0.1, upload_timeout=1.0)
+    scope = {"type": "http", "method": method, "path": path, "headers": headers}
+    asyncio.run(Timeout(app, settings)(scope, receive, send))
+    assert sent[0]["status"] == status
