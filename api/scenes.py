@@ -305,6 +305,18 @@ class SceneRepository:
         self._lock = threading.Lock()
         self._compiled: collections.OrderedDict[str, tuple[int, object]] = collections.OrderedDict()
 
+    def _triangles_within_limit(self, state: SceneState, subject: str) -> int:
+        """``state``'s triangles; ApiError 422 over ``max_triangles``."""
+        triangles = count_triangles(state)
+        if triangles > self.settings.max_triangles:
+            raise ApiError(
+                422,
+                f"{subject} {triangles} triangles, more than the limit of "
+                f"{self.settings.max_triangles}",
+                "too_many_triangles",
+            )
+        return triangles
+
     def _compile(self, scene_id: str, state: SceneState) -> dict:
         """``state``'s summary, compiled from the kept compiled form of the scene's previous
         version where there is one (SceneError if the renderer refuses it); keeps the result."""
@@ -356,14 +368,7 @@ class SceneRepository:
             raise ApiError(422, f"{entry}: no such file in the upload", "missing_file")
         check_references(files)
         state = load_scene(scene_path)  # SceneError -> 422
-        triangles = count_triangles(state)
-        if triangles > self.settings.max_triangles:
-            raise ApiError(
-                422,
-                f"the scene has {triangles} triangles, more than the limit of "
-                f"{self.settings.max_triangles}",
-                "too_many_triangles",
-            )
+        triangles = self._triangles_within_limit(state, "the scene has")
         state = dataclasses.replace(state, version=0)
         scene_id = new_id("s")
         described = self._compile(scene_id, state)  # what the renderer refuses fails here (422)
@@ -431,14 +436,9 @@ class SceneRepository:
         with entry.lock:
             state = entry.graph.state
             candidate = apply_commit(state, Commit(state.version + 1, parsed))  # SceneError -> 422
-            triangles = count_triangles(candidate)
-            if triangles > self.settings.max_triangles:
-                raise ApiError(
-                    422,
-                    f"after this commit the scene would have {triangles} triangles, more "
-                    f"than the limit of {self.settings.max_triangles}",
-                    "too_many_triangles",
-                )
+            triangles = self._triangles_within_limit(
+                candidate, "after this commit the scene would have"
+            )
             described = self._compile(entry.id, candidate)  # what the renderer refuses: 422
             commit = entry.graph.commit(parsed)  # the same ops on the same state: it applies
             version = commit.version

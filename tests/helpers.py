@@ -1,6 +1,8 @@
 """Shared test helpers: triangle soups, meshes, rays and tiny scenes."""
 
+import io
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -117,6 +119,19 @@ def tiny_scene(**changes) -> dict:
     }
     scene.update(changes)
     return scene
+
+
+def zip_bytes(entries: dict[str, bytes], links: dict[str, str] | None = None) -> bytes:
+    """A zip of ``entries`` (name: bytes) and symbolic ``links`` (name: target)."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, data in entries.items():
+            z.writestr(name, data)
+        for name, target in (links or {}).items():
+            info = zipfile.ZipInfo(name)
+            info.external_attr = 0o120777 << 16
+            z.writestr(info, target)
+    return buffer.getvalue()
 
 
 def write_json(path: Path, data) -> Path:

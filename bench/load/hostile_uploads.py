@@ -2,42 +2,25 @@
 bundles, OBJ/MTL and glTF/GLB files, and the auth cases (run against a server with a token).
 The shapes of a case are ``hostile_cases.py``'s."""
 
-import copy
-import io
 import json
 import struct
-import zipfile
 
 from bench.load.hostile_cases import JSON, Case, MiB, Send, call, many_poses, raw
+from tests.helpers import tiny_scene, zip_bytes
 
 C = Case
 UPLOAD = "POST /v1/scenes"
 TOKEN = "hostile-corpus-token"
 
-SCENE = {
-    "format": "tilerender/1",
-    "camera": {"position": [0.0, 1.5, 4.0], "look_at": [0.0, 0.5, 0.0], "up": [0.0, 1.0, 0.0],
-               "vfov_deg": 45.0, "width": 12, "height": 8},
-    "render": {"spp": 1, "max_depth": 4, "rr_depth": 2, "seed": 1},
-    "materials": {
-        "grey": {"reflectance": [0.7, 0.7, 0.7]},
-        "lamp": {"reflectance": [0, 0, 0], "emission": [8, 8, 8], "two_sided": False},
-    },
-    "objects": [
-        {"name": "floor", "shape": {"type": "plane", "size": 10}, "material": "grey"},
-        {"name": "cube", "shape": {"type": "box", "size": [1, 1, 1]}, "material": "grey",
-         "transform": {"translate": [0, 0.5, 0], "rotate": [0, 30, 0]}},
-        {"name": "lamp", "shape": {"type": "rectangle", "size": [1, 1]}, "material": "lamp",
-         "transform": {"translate": [0, 3, 0], "rotate": [90, 0, 0]}},
-    ],
-}  # fmt: skip
-"""A small valid scene of built-in shapes (12x8 pixels, 1 spp)."""
+RENDER = {"spp": 1, "max_depth": 4, "rr_depth": 2, "seed": 1}
 
 
 def scene(**changes) -> dict:
-    out = copy.deepcopy(SCENE)
-    out.update(changes)
-    return out
+    """A small valid scene of built-in shapes (12x8 pixels, 1 spp), with ``changes``."""
+    return tiny_scene(**{"render": RENDER, **changes})
+
+
+SCENE = scene()
 
 
 def animated_scene() -> dict:
@@ -73,18 +56,6 @@ OBJ_EMPTY = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"
 OBJ_NAN = b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
 OBJ_FAR = b"v 1e38 0 0\nv 1.00001e38 0 0\nv 1e38 1e33 0\nf 1 2 3\n"
 MTL_OUT = b"newmtl m\nKd 1 1 1\nmap_Kd ../../../etc/x.png\n"
-
-
-def zip_bytes(entries: dict[str, bytes], links: dict[str, str] | None = None) -> bytes:
-    buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as z:
-        for name, data in entries.items():
-            z.writestr(name, data)
-        for name, target in (links or {}).items():
-            info = zipfile.ZipInfo(name)
-            info.external_attr = 0o120777 << 16
-            z.writestr(info, target)
-    return buffer.getvalue()
 
 
 def _patch_headers(data: bytes, name: bytes, local: tuple, central: tuple) -> bytes:

@@ -5,19 +5,17 @@ Test apps render with one tracer of one CPU, so two apps (the restart test's sec
 module's own next to a shared one) fit on the two-CPU embedded Ray together."""
 
 import contextlib
-import io
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
-import zipfile
 from pathlib import Path
 
 import pytest
 
-from tests.helpers import CORNELL, tiny_scene
+from tests.helpers import CORNELL, tiny_scene, zip_bytes  # noqa: F401 (tests import it here)
 
 TILERENDER = Path(sys.executable).with_name("tilerender")
 READY_TIMEOUT = 300.0
@@ -122,18 +120,6 @@ def animated_scene(frames: int = 4) -> dict:
         "camera": [{"time": 0}, {"time": 1, "position": [1, 1.5, 4]}],
     }
     return scene
-
-
-def zip_bytes(entries: dict[str, bytes], links: dict[str, str] | None = None) -> bytes:
-    buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as z:
-        for name, data in entries.items():
-            z.writestr(name, data)
-        for name, target in (links or {}).items():
-            info = zipfile.ZipInfo(name)
-            info.external_attr = 0o120777 << 16
-            z.writestr(info, target)
-    return buffer.getvalue()
 
 
 def upload_tiny(client, **changes) -> dict:
