@@ -221,7 +221,7 @@ CUBE_KEY = {"time": 0.0}
 
 BAD_SECTIONS = [
     ("unknown object", {"objects": {"ghost": [CUBE_KEY]}}, r"no object is named 'ghost'"),
-    ("unnamed object", {"objects": {"": [CUBE_KEY]}}, r"no object is named ''"),
+    ("unnamed object", {"objects": {"": [CUBE_KEY]}}, r"animation\.objects.*at least 1 character"),
     (
         "static object",
         {"objects": {"floor": [CUBE_KEY]}},
