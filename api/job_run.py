@@ -2,9 +2,11 @@
 and one bounded turn (``cluster.turns``) per step.
 """
 
+import concurrent.futures
 import dataclasses
+import functools
 import time
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +67,29 @@ def job_state(state: SceneState, request: dict) -> SceneState:
         seed=request.get("seed"),
         max_depth=request.get("max_depth"),
     )
+
+
+WAIT_SECONDS = 0.05
+"""Longest a turn waits for a wave's arithmetic on the worker thread before giving way."""
+
+
+@functools.cache
+def wave_worker() -> concurrent.futures.ThreadPoolExecutor:
+    """The one thread progressive frames' arithmetic runs on."""
+    return concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="tilerender-waves")
+
+
+def off_thread(fn: Callable, *args) -> Generator:
+    """``fn(*args)`` on the wave worker thread, yielding turns (each waiting at most
+    ``WAIT_SECONDS``) until it returns: a progressive frame's estimate and spot-check plan at
+    4K take seconds of numpy (which releases the GIL), and the render thread keeps serving
+    sessions and calls meanwhile. Returns what ``fn`` returns."""
+    future = wave_worker().submit(fn, *args)
+    while True:
+        try:
+            return future.result(timeout=WAIT_SECONDS)
+        except concurrent.futures.TimeoutError:
+            yield
 
 
 class JobRun:
@@ -173,14 +198,15 @@ class JobRun:
             if isinstance(step, SpotCheck):
                 checks = spot_checks_in_turns(coordinator, step, request, self.graph, sizer)
                 pixels, parts, work, seconds = yield from checks
-                p.add_spot_checks(pixels, parts, seconds, work)
+                yield from off_thread(p.add_spot_checks, pixels, parts, seconds, work)
             else:
                 part = yield from self._part(coordinator, part_request(request, step))
-                p.add_part(part.image, part.seconds, part.work)
+                yield from off_thread(p.add_part, part.image, part.seconds, part.work)
             step = p.next_part()
             if step is not None:
                 yield
-        return self._complete(spec, p.image, p.spp, p.error, p.elapsed)
+        image = yield from off_thread(lambda: p.image)
+        return self._complete(spec, image, p.spp, p.error, p.elapsed)
 
     def _part(self, coordinator, request: FrameRequest) -> Generator:
         """Render ``request`` run by run; returns its :class:`TurnedFrame`."""

@@ -106,3 +106,25 @@ def test_a_big_job_leaves_the_render_thread_to_others_and_cancel_stops_it(client
     assert done["status"] == "done" and time.monotonic() - cancelled < 15.0
     final = client.get(f"/v1/jobs/{big_id}").json()
     assert final["status"] == "cancelled" and final["progress"]["frames_done"] == 0
+
+
+def test_a_waves_arithmetic_runs_off_the_render_thread():
+    """A progressive frame's heavy numpy (estimate, spot-check plan) runs on the wave worker:
+    the render thread's turn gives way while it runs, and gets its result."""
+    import threading
+
+    from api.job_run import off_thread
+
+    release = threading.Event()
+
+    def slow() -> str:
+        release.wait(10)
+        return threading.current_thread().name
+
+    turns = off_thread(slow)
+    next(turns)  # not done within a turn's wait: the render thread is free for others
+    release.set()
+    with pytest.raises(StopIteration) as done:
+        while True:
+            next(turns)
+    assert done.value.value.startswith("tilerender-waves")
