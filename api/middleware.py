@@ -96,17 +96,27 @@ class JSONCORSMiddleware(CORSMiddleware):
 
 
 class BodyLimit:
-    """Refuse request bodies over ``limit`` bytes with 413: at once when Content-Length says
-    so, else as soon as the bytes received pass it (the upload is not read further)."""
+    """Refuse request bodies over their limit with 413: at once when Content-Length says so,
+    else as soon as the bytes received pass it (the body is not read further). Uploads and
+    commits (which may carry meshes and vertices) may send ``max_upload_bytes``; every other
+    request ``max_json_bytes``, so a job of hundreds of thousands of poses is refused before
+    anything parses it."""
 
     def __init__(self, app, settings) -> None:
         self.app = app
         self.settings = settings
 
+    def limit(self, method: str, path: str) -> int:
+        scene_change = path.startswith("/v1/scenes") and (
+            (method == "POST" and (path == "/v1/scenes" or path.endswith("/commits")))
+            or method == "PATCH"
+        )
+        return self.settings.max_upload_bytes if scene_change else self.settings.max_json_bytes
+
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        limit = self.settings.max_upload_bytes
+        limit = self.limit(scope.get("method", ""), scope.get("path", ""))
         for name, value in scope.get("headers", ()):
             if name == b"content-length":
                 try:

@@ -58,7 +58,10 @@ class Settings(BaseModel):
     cors_origins: list[str] = Field(default_factory=list)
 
     # Limits --------------------------------------------------------------------------------
-    max_upload_bytes: int = Field(default=64 * MiB, ge=1024)
+    max_upload_bytes: int = Field(default=64 * MiB, ge=1024, description="uploads, commits")
+    max_json_bytes: int = Field(
+        default=4 * MiB, ge=1024, description="the body of any other request (jobs, sessions)"
+    )
     max_unpacked_bytes: int = Field(default=256 * MiB, ge=1024)
     max_bundle_files: int = Field(default=256, ge=1)
     max_compression_ratio: float = Field(default=100.0, gt=1.0)
