@@ -59,7 +59,7 @@ def test_a_progressive_job_in_many_turns_equals_one_in_few(client, settings_of, 
     scene = upload_tiny(client)
     body = {"scene_id": scene["id"], "target_error": 0.2, "width": 32, "height": 24}
     results = []
-    for seconds in (10.0, 0.002):
+    for seconds in (10.0, 0.004):
         settings_of(client, job_turn_seconds=seconds)
         frame_regions.clear()
         job = wait_job(client, client.post("/v1/jobs", json=body).json()["id"])

@@ -20,8 +20,20 @@ from bench.load.hostile_uploads import TOKEN
 TOLERANCE_MIB = hostile.DEFAULT_RSS_TOLERANCE_MIB
 
 
+SAMPLE_EVERY = 3
+"""The default suite sends every third case of the quick subset and every auth case (about a
+third of the time); ``-m slow`` sends the rest."""
+
+
 def params(cases: list[Case]) -> list:
-    return [pytest.param(case, id=case.name) for case in cases]
+    return [
+        pytest.param(
+            case,
+            id=case.name,
+            marks=[] if k % SAMPLE_EVERY == 0 or case.auth else [pytest.mark.slow],
+        )
+        for k, case in enumerate(cases)
+    ]
 
 
 @dataclasses.dataclass
