@@ -159,7 +159,7 @@ class JobQueue:
             try:
                 state = decode_state((job_dir(self.settings, job_id) / "scene.tls").read_bytes())
                 done = {f["frame"] for f in self.store.frames(job_id)}
-                run = JobRun(record, state, done, self.settings, self.settings.job_turn_seconds)
+                run = JobRun(record, state, done, self.settings)
             except (OSError, SceneError, ValueError) as exc:
                 self.fail(job_id, f"the job cannot start: {exc}")
                 continue

@@ -95,7 +95,7 @@ def off_thread(fn: Callable, *args) -> Generator:
 class JobRun:
     """A job being rendered by the render thread, one bounded turn per :meth:`step`.
 
-    A turn renders one pixel run of a frame (about ``turn_seconds`` of work, the whole frame
+    A turn renders one pixel run of a frame (about ``sizer.seconds`` of work, the whole frame
     when it is smaller) or one run of a progressive wave's spot checks. A frame by samples per
     pixel is one pass, run by run, so its pixels are the command line's bit for bit; a
     progressive frame's clock counts only this job's turns (not other work in between).
@@ -107,7 +107,6 @@ class JobRun:
         state: SceneState,
         done_frames: set[int],
         settings: Settings,
-        turn_seconds: float = 0.5,
     ):
         self.id = record["id"]
         self.record = record
@@ -134,7 +133,8 @@ class JobRun:
             self.max_spp,
             len(self.frames),
         )
-        self.sizer = TurnSizer(turn_seconds)
+        self.sizer = TurnSizer(settings.job_turn_seconds)
+        """Sizes the turns; the service sets its ``seconds`` before each."""
         self.started = time.monotonic()
         self.done_at_start = self.done
         self.last_frame = None

@@ -39,7 +39,8 @@ def job_public(ctx: Ctx, record: dict, with_frames: bool = False) -> JobPublic:
     """A job as the API shows it: its record, its live progress while it runs (else what its
     finished frames add up to), its place in the queue while queued."""
     live = ctx.service.jobs.progress(record["id"])
-    finished = ctx.store.frames(record["id"]) if with_frames or live is None else []
+    wanted = with_frames or (live is None and record["frames_done"] > 0)
+    finished = ctx.store.frames(record["id"]) if wanted else []
     if live is not None:
         progress = Progress(**live)
     else:
