@@ -30,13 +30,18 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "light sampling and frame buffer included). Writes bench/results/renderer_mrays.json.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("--width", type=int, default=256)
-    parser.add_argument("--height", type=int, default=192)
-    parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--width", type=int, default=256, help="frame width in pixels")
+    parser.add_argument("--height", type=int, default=192, help="frame height in pixels")
+    parser.add_argument("--spp", type=int, default=16, help="samples per pixel")
     parser.add_argument("--repeats", type=int, default=5, help="timed renders per scene")
-    parser.add_argument("--threads", type=int, default=usable_cores())
-    parser.add_argument("--scenes", nargs="*", help="scene names (default: every sample scene)")
-    return parser.parse_args(argv)
+    parser.add_argument("--threads", type=int, default=usable_cores(), help="render threads")
+    parser.add_argument(
+        "--scenes", nargs="*", help="names of scenes/ folders (default: every sample scene)"
+    )
+    args = parser.parse_args(argv)
+    if min(args.width, args.height, args.spp, args.repeats, args.threads) < 1:
+        parser.error("--width, --height, --spp, --repeats and --threads must be at least 1")
+    return args
 
 
 def measure(args: argparse.Namespace) -> dict[str, dict]:
@@ -46,9 +51,12 @@ def measure(args: argparse.Namespace) -> dict[str, dict]:
     from tracer.scene.format import override
     from tracer.scene.loader import load_scene
 
+    paths = {path.parent.name: path for path in sample_scene_files(REPO_ROOT / "scenes")}
+    unknown = sorted(set(args.scenes or ()) - set(paths))
+    if unknown:
+        raise SystemExit(f"unknown scene(s) {', '.join(unknown)}; known: {', '.join(paths)}")
     results = {}
-    for path in sample_scene_files(REPO_ROOT / "scenes"):
-        name = path.parent.name
+    for name, path in paths.items():
         if args.scenes and name not in args.scenes:
             continue
         scene = compile_scene(load_scene(path))
