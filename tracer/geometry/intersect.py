@@ -286,7 +286,9 @@ def intersect_triangle(tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_ma
 def closer(t, inst, prim, t_best, inst_best, prim_best):
     """Whether a hit (t, inst, prim) beats the best so far: nearer, or as near and of a lower
     (instance, triangle) key. The tie-break makes the closest hit independent of the order in
-    which the BVH visits triangles, so refitted and rebuilt trees render the same pixels."""
+    which the BVH visits triangles, so refitted and rebuilt trees render the same pixels, except
+    at ulp-level near-ties, where the range test and box culling against the hit so far still
+    depend on the order (docs/performance.md, "Packets of four rays")."""
     if t < t_best:
         return True
     if t > t_best:
