@@ -40,6 +40,9 @@ GAMMA3 = gamma(3)
 GAMMA5 = gamma(5)
 GAMMA7 = gamma(7)
 SLAB_WIDEN = 1.0 + 2.0 * GAMMA3
+RANGE_WIDEN = 1.0 + 4.0 * MACHINE_EPSILON
+"""Covers the roundings of ``t_max * det`` and of ``t_scaled / det`` in the triangle test's
+early out, so that it rejects only triangles whose computed ``t`` exceeds ``t_max``."""
 NO_INSTANCE = np.iinfo(np.int32).max
 """Key of "no hit yet" in the closest-hit tie-break: above every real instance or triangle."""
 NO_ENTRY = np.iinfo(np.int32).min
@@ -195,11 +198,16 @@ def _slab4(typingctx, bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max):
 
 
 @jit_inline
-def visit(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max):
-    """Distances to the four child boxes of wide node ``node`` (inf for a miss or an entry past
-    ``t_max``), sorted nearest first with the child references: ``(t0, c0, ..., t3, c3)``.
-    A box entered exactly at ``t_max`` counts: it may still hold a tie with a lower key."""
+def visit(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, floor, t_max):
+    """Keys of the four child boxes of wide node ``node``: the entry distance, raised to at
+    least ``floor`` (the key of ``node`` itself), or inf for a miss or an entry past ``t_max``;
+    sorted nearest first with the child references: ``(t0, c0, ..., t3, c3)``. A box entered
+    exactly at ``t_max`` counts: it may still hold a tie with a lower key."""
     t0, t1, t2, t3 = _slab4(bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max)
+    t0 = max(t0, floor)
+    t1 = max(t1, floor)
+    t2 = max(t2, floor)
+    t3 = max(t3, floor)
     c0 = child[node, 0]
     c1 = child[node, 1]
     c2 = child[node, 2]
@@ -258,12 +266,17 @@ def intersect_triangle(tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_ma
     bz = sz * bz_
     cz = sz * cz_
     t_scaled = u * az + v * bz + w * cz
-    if det < 0.0 and (t_scaled >= 0.0 or t_scaled < t_max * det):
+    # An early out before the division where t is surely past t_max; the range test proper is
+    # on t itself, so that accepting a triangle never depends on how t_max * det rounds.
+    far = t_max * det * RANGE_WIDEN
+    if det < 0.0 and (t_scaled >= 0.0 or t_scaled < far):
         return np.inf, 0.0, 0.0, 0.0
-    if det > 0.0 and (t_scaled <= 0.0 or t_scaled > t_max * det):
+    if det > 0.0 and (t_scaled <= 0.0 or t_scaled > far):
         return np.inf, 0.0, 0.0, 0.0
     inv_det = 1.0 / det
     t = t_scaled * inv_det
+    if t > t_max:
+        return np.inf, 0.0, 0.0, 0.0
     # Reject hits within the error bound of t = 0 (pbrt-v4, Triangle::Intersect).
     # x and y were sheared with the unscaled z (|sx|, |sy| <= 1), so their error bounds use it;
     # the scaled z (in units of t) enters only through delta_z.
@@ -285,10 +298,9 @@ def intersect_triangle(tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_ma
 @jit_inline
 def closer(t, inst, prim, t_best, inst_best, prim_best):
     """Whether a hit (t, inst, prim) beats the best so far: nearer, or as near and of a lower
-    (instance, triangle) key. The tie-break makes the closest hit independent of the order in
-    which the BVH visits triangles, so refitted and rebuilt trees render the same pixels, except
-    at ulp-level near-ties, where the range test and box culling against the hit so far still
-    depend on the order (docs/performance.md, "Packets of four rays")."""
+    (instance, triangle) key. With the hit keys of :func:`blas_closest` (``t`` is a key there),
+    this makes the closest hit independent of the order in which the BVH visits triangles, so
+    refitted and rebuilt trees render the same pixels."""
     if t < t_best:
         return True
     if t > t_best:
@@ -321,8 +333,10 @@ def blas_closest(
     tri_prim,
     root,
     inst,
+    floor,
     o,
     d,
+    t_key,
     t_hit,
     h_inst,
     h_j,
@@ -334,37 +348,52 @@ def blas_closest(
     stack_t,
     sp0,
 ):
-    """Closest-hit traversal of one BVH from node ``root`` for the ray ``o + t d``.
+    """Closest-hit traversal of one BVH from node ``root`` (entered with key ``floor``) for the
+    ray ``o + t d``.
 
-    Continues a search whose best hit so far is ``(t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2)``
-    (``h_j`` the triangle's row, ``h_prim`` its original index, ``hb*`` barycentrics); triangles
-    here belong to instance ``inst``. Uses the stacks above ``sp0``. Returns the updated best hit
-    and the work done: ``(t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost)``.
+    Continues a search whose best hit so far is ``(t_key, t_hit, h_inst, h_j, h_prim, hb0, hb1,
+    hb2)``: its key, its distance, its triangle's row ``h_j`` and original index ``h_prim``, and
+    barycentrics; triangles here belong to instance ``inst``. Uses the stacks above ``sp0``.
+    Returns the updated best hit and the work done: ``(t_key, t_hit, h_inst, h_j, h_prim, hb0,
+    hb1, hb2, cost)``.
+
+    A hit's key is its ``t`` raised to the keys of the boxes the traversal entered to reach it
+    (each box's key is its entry distance, raised to its parent's key). The best hit is the least
+    by (key, instance, triangle): a box is dropped only when its key exceeds the best key, and
+    every hit inside it has a key at least the box's, so what is dropped can never win and the
+    result does not depend on the order of the visits (nor on a packet's order, nor on a
+    refit). The key equals ``t`` except where a hit's computed ``t`` rounds below its box's
+    computed entry.
     """
     ox, oy, oz = o
     ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
     cost = 0
     sp = sp0
     entry = root
+    entry_key = floor
     while True:
         if entry >= 0:
             # An interior node: go on into the nearest box entered, keep the others.
             cost += 1
             t0, c0, t1, c1, t2, c2, t3, c3 = visit(
-                node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_hit
-            )
+                node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, entry_key,
+                t_key,
+            )  # fmt: skip
             sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
             if t0 < np.inf:
                 entry = c0
+                entry_key = t0
                 continue
         else:
             v = -1 - entry
             for j in range(v >> 3, (v >> 3) + (v & 7)):
                 cost += 1
                 t, b0, b1, b2 = intersect_triangle(
-                    tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_hit
+                    tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_key
                 )
-                if t < np.inf and closer(t, inst, tri_prim[j], t_hit, h_inst, h_prim):
+                key = max(t, entry_key)
+                if t < np.inf and closer(key, inst, tri_prim[j], t_key, h_inst, h_prim):
+                    t_key = key
                     t_hit = t
                     h_inst = inst
                     h_j = j
@@ -372,17 +401,18 @@ def blas_closest(
                     hb0 = b0
                     hb1 = b1
                     hb2 = b2
-        # Pop the nearest pending box that can still hold a closer hit.
+        # Pop the nearest pending box that can still hold a better hit.
         entry = 0
         found = False
         while sp > sp0:
             sp -= 1
-            if stack_t[sp] <= t_hit:
+            if stack_t[sp] <= t_key:
                 entry = stack_node[sp]
+                entry_key = stack_t[sp]
                 found = True
                 break
         if not found:
-            return t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost
+            return t_key, t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost
 
 
 @jit_inline
@@ -428,8 +458,8 @@ def intersect(node_bounds, node_child, tri_verts, tri_prim, o, d, t_max, stack_n
     Returns ``(j, t, b0, b1, b2, cost)``: ``j`` the hit triangle's row (-1 for a miss),
     barycentrics of the hit, and the node visits plus triangle tests spent (a work measure).
     """
-    t, _, j, _, b0, b1, b2, cost = blas_closest(
-        node_bounds, node_child, tri_verts, tri_prim, 0, 0, o, d, t_max,
+    _, t, _, j, _, b0, b1, b2, cost = blas_closest(
+        node_bounds, node_child, tri_verts, tri_prim, 0, 0, 0.0, o, d, t_max, t_max,
         NO_INSTANCE, -1, NO_INSTANCE, 0.0, 0.0, 0.0, stack_node, stack_t, 0,
     )  # fmt: skip
     return j, t, b0, b1, b2, cost

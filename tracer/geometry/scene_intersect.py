@@ -55,10 +55,12 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
     ``j`` in the instance's pool, the distance, barycentrics and the work done.
 
     The top level is walked with one stack holding both nodes and leaves; a leaf entered
-    becomes the run of instances ``tlas_inst[q:q_end]`` to visit. A scene of one instance skips
-    the top level.
+    becomes the run of instances ``tlas_inst[q:q_end]`` to visit, each entered with the leaf's
+    key (``intersect.blas_closest`` explains keys: they make the hit independent of the order
+    of the visits). A scene of one instance skips the top level.
     """
     ix, iy, iz, nx, ny, nz, _, _, _, _, _, _, _, _, _ = ray_setup(o, d)
+    t_key = t_max
     t_hit = t_max
     h_inst = NO_INSTANCE
     h_j = -1
@@ -71,6 +73,8 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
     q = 0
     q_end = 0
     entry = 0  # the top-level root
+    entry_key = 0.0
+    leaf_key = 0.0
     if s.tlas_inst.shape[0] == 1:
         q_end = 1
         entry = NO_ENTRY
@@ -80,15 +84,17 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
             q += 1
             pool = s.inst_pool[k]
             o_k, d_k = to_object(s, k, o, d)
-            t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, c_blas = blas_closest(
+            t_key, t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, c_blas = blas_closest(
                 pick(s.blas_bounds, pool),
                 pick(s.blas_child, pool),
                 pick(s.tri_verts, pool),
                 pick(s.tri_prim, pool),
                 s.inst_root[k],
                 k,
+                leaf_key,
                 o_k,
                 d_k,
+                t_key,
                 t_hit,
                 h_inst,
                 h_j,
@@ -106,22 +112,26 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
             # A top-level node: go on into the nearest box entered, keep the others.
             cost += 1
             t0, c0, t1, c1, t2, c2, t3, c3 = visit(
-                s.tlas_bounds, s.tlas_child, entry, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz, t_hit
-            )
+                s.tlas_bounds, s.tlas_child, entry, o[0], o[1], o[2], ix, iy, iz, nx, ny, nz,
+                entry_key, t_key,
+            )  # fmt: skip
             sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
             if t0 < np.inf:
                 entry = c0
+                entry_key = t0
                 continue
         elif entry != NO_ENTRY:
             q, q_end = _leaf_range(entry)
+            leaf_key = entry_key
             entry = NO_ENTRY
             continue
-        # Pop the nearest pending node or leaf that can still hold a closer hit.
+        # Pop the nearest pending node or leaf that can still hold a better hit.
         entry = NO_ENTRY
         while sp > 0:
             sp -= 1
-            if stack_t[sp] <= t_hit:
+            if stack_t[sp] <= t_key:
                 entry = stack_node[sp]
+                entry_key = stack_t[sp]
                 break
         if entry == NO_ENTRY:
             k_out = h_inst if h_inst != NO_INSTANCE else -1
