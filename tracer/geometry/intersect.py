@@ -299,8 +299,8 @@ def intersect_triangle(tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_ma
 def closer(t, inst, prim, t_best, inst_best, prim_best):
     """Whether a hit (t, inst, prim) beats the best so far: nearer, or as near and of a lower
     (instance, triangle) key. With the hit keys of :func:`blas_closest` (``t`` is a key there),
-    this makes the closest hit independent of the order in which the BVH visits triangles, so
-    refitted and rebuilt trees render the same pixels."""
+    this makes the closest hit independent of the order in which the BVH visits triangles, and
+    of the tree's shape except at ulp-level near-ties (see there)."""
     if t < t_best:
         return True
     if t > t_best:
@@ -361,9 +361,9 @@ def blas_closest(
     (each box's key is its entry distance, raised to its parent's key). The best hit is the least
     by (key, instance, triangle): a box is dropped only when its key exceeds the best key, and
     every hit inside it has a key at least the box's, so what is dropped can never win and the
-    result does not depend on the order of the visits (nor on a packet's order, nor on a
-    refit). The key equals ``t`` except where a hit's computed ``t`` rounds below its box's
-    computed entry.
+    result does not depend on the order of the visits in this tree (nor on a packet's). The key
+    equals ``t`` except where a hit's computed ``t`` rounds below a box's computed entry; only
+    there can another tree over the same triangles (refitted, rebuilt) pick another hit.
     """
     ox, oy, oz = o
     ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
