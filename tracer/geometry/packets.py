@@ -57,24 +57,12 @@ def packet_closest(
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (directions[i, 0], directions[i, 1], directions[i, 2])
         ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
-        ray_f[r, 0] = ix
-        ray_f[r, 1] = iy
-        ray_f[r, 2] = iz
-        ray_f[r, 3] = sx
-        ray_f[r, 4] = sy
-        ray_f[r, 5] = sz
-        ray_f[r, 6] = okx
-        ray_f[r, 7] = oky
-        ray_f[r, 8] = okz
-        ray_f[r, 9] = o[0]
-        ray_f[r, 10] = o[1]
-        ray_f[r, 11] = o[2]
-        ray_i[r, 0] = nx
-        ray_i[r, 1] = ny
-        ray_i[r, 2] = nz
-        ray_i[r, 3] = kx
-        ray_i[r, 4] = ky
-        ray_i[r, 5] = kz
+        floats = (ix, iy, iz, sx, sy, sz, okx, oky, okz, o[0], o[1], o[2])
+        for k in range(12):
+            ray_f[r, k] = floats[k]
+        ints = (nx, ny, nz, kx, ky, kz)
+        for k in range(6):
+            ray_i[r, k] = ints[k]
         best_key[r] = t_max[i]
         hit_t[r] = t_max[i]
         hit_j[r] = -1

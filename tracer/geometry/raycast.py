@@ -19,7 +19,7 @@ from tracer.geometry.intersect import (
 )
 from tracer.geometry.packets import PACKET, packet_closest
 from tracer.kernel.borrow import borrowed
-from tracer.kernel.jit import jit
+from tracer.kernel.jit import jit, jit_inline
 from tracer.kernel.threads import run_parts
 
 RAY_BLOCK = 256
@@ -36,6 +36,33 @@ class Hits(NamedTuple):
     b: np.ndarray
     cost: np.ndarray
     tri: np.ndarray
+
+
+@jit_inline
+def _store_hit(i, j, t, b0, b1, b2, tri_prim, prim, t_out, bary, tri):
+    """Ray ``i``'s hit of row ``j`` (nothing for a miss, ``j < 0``) into the output arrays."""
+    if j >= 0:
+        tri[i] = j
+        prim[i] = tri_prim[j]
+        t_out[i] = t
+        bary[i, 0] = b0
+        bary[i, 1] = b1
+        bary[i, 2] = b2
+
+
+@jit_inline
+def _closest_one(
+    node_bounds, node_child, tri_verts, tri_prim, origins, directions, t_max, i, stack_node,
+    stack_t, prim, t_out, bary, cost, tri,
+):  # fmt: skip
+    """Ray ``i``'s closest hit, traced alone, into the output arrays."""
+    o = (origins[i, 0], origins[i, 1], origins[i, 2])
+    d = (directions[i, 0], directions[i, 1], directions[i, 2])
+    j, t, b0, b1, b2, c = intersect(
+        node_bounds, node_child, tri_verts, tri_prim, o, d, t_max[i], stack_node, stack_t
+    )
+    cost[i] = c
+    _store_hit(i, j, t, b0, b1, b2, tri_prim, prim, t_out, bary, tri)
 
 
 @jit
@@ -66,19 +93,8 @@ def _closest(
     n = origins.shape[0]
     for block in range(first, (n + RAY_BLOCK - 1) // RAY_BLOCK, stride):
         for i in range(block * RAY_BLOCK, min(n, (block + 1) * RAY_BLOCK)):
-            o = (origins[i, 0], origins[i, 1], origins[i, 2])
-            d = (directions[i, 0], directions[i, 1], directions[i, 2])
-            j, t, b0, b1, b2, c = intersect(
-                node_bounds, node_child, tri_verts, tri_prim, o, d, t_max[i], stack_node, stack_t
-            )
-            cost[i] = c
-            if j >= 0:
-                tri[i] = j
-                prim[i] = tri_prim[j]
-                t_out[i] = t
-                bary[i, 0] = b0
-                bary[i, 1] = b1
-                bary[i, 2] = b2
+            _closest_one(node_bounds, node_child, tri_verts, tri_prim, origins, directions, t_max,
+                         i, stack_node, stack_t, prim, t_out, bary, cost, tri)  # fmt: skip
 
 
 @jit
@@ -128,29 +144,12 @@ def _closest_packets(
                 stack_node, stack_key,
             )  # fmt: skip
             for r in range(PACKET):
-                j = hit_j[r]
-                if j >= 0:
-                    tri[i0 + r] = j
-                    prim[i0 + r] = tri_prim[j]
-                    t_out[i0 + r] = hit_t[r]
-                    bary[i0 + r, 0] = hit_b[r, 0]
-                    bary[i0 + r, 1] = hit_b[r, 1]
-                    bary[i0 + r, 2] = hit_b[r, 2]
+                _store_hit(i0 + r, hit_j[r], hit_t[r], hit_b[r, 0], hit_b[r, 1], hit_b[r, 2],
+                           tri_prim, prim, t_out, bary, tri)  # fmt: skip
             i0 += PACKET
         for i in range(i0, end):
-            o = (origins[i, 0], origins[i, 1], origins[i, 2])
-            d = (directions[i, 0], directions[i, 1], directions[i, 2])
-            j, t, b0, b1, b2, c = intersect(
-                node_bounds, node_child, tri_verts, tri_prim, o, d, t_max[i], stack_node, stack_t
-            )
-            cost[i] = c
-            if j >= 0:
-                tri[i] = j
-                prim[i] = tri_prim[j]
-                t_out[i] = t
-                bary[i, 0] = b0
-                bary[i, 1] = b1
-                bary[i, 2] = b2
+            _closest_one(node_bounds, node_child, tri_verts, tri_prim, origins, directions, t_max,
+                         i, stack_node, stack_t, prim, t_out, bary, cost, tri)  # fmt: skip
 
 
 @jit
