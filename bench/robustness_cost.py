@@ -34,7 +34,7 @@ from raycast import camera_rays, icospheres
 from tracer import config
 from tracer.compiled.scene import STATIC_KEY, compile_scene
 from tracer.geometry import bvh
-from tracer.geometry.intersect import nearer_first, push_far
+from tracer.geometry.intersect import nearest_first4, push_far
 from tracer.geometry.raycast import Hits, _closest
 from tracer.kernel.borrow import borrowed
 from tracer.scene.loader import load_scene
@@ -123,15 +123,10 @@ def naive_closest(
                 t1 = _naive_slab(node_bounds, entry, 1, o[0], o[1], o[2], ix, iy, iz, t_hit)
                 t2 = _naive_slab(node_bounds, entry, 2, o[0], o[1], o[2], ix, iy, iz, t_hit)
                 t3 = _naive_slab(node_bounds, entry, 3, o[0], o[1], o[2], ix, iy, iz, t_hit)
-                c0 = node_child[entry, 0]
-                c1 = node_child[entry, 1]
-                c2 = node_child[entry, 2]
-                c3 = node_child[entry, 3]
-                t0, c0, t1, c1 = nearer_first(t0, c0, t1, c1)
-                t2, c2, t3, c3 = nearer_first(t2, c2, t3, c3)
-                t0, c0, t2, c2 = nearer_first(t0, c0, t2, c2)
-                t1, c1, t3, c3 = nearer_first(t1, c1, t3, c3)
-                t1, c1, t2, c2 = nearer_first(t1, c1, t2, c2)
+                t0, c0, t1, c1, t2, c2, t3, c3 = nearest_first4(
+                    t0, node_child[entry, 0], t1, node_child[entry, 1],
+                    t2, node_child[entry, 2], t3, node_child[entry, 3],
+                )  # fmt: skip
                 sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
                 if t0 < np.inf:
                     entry = c0

@@ -208,11 +208,14 @@ def visit(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, floor, t_max)
     t1 = max(t1, floor)
     t2 = max(t2, floor)
     t3 = max(t3, floor)
-    c0 = child[node, 0]
-    c1 = child[node, 1]
-    c2 = child[node, 2]
-    c3 = child[node, 3]
-    # A sorting network of five compare-exchanges.
+    return nearest_first4(
+        t0, child[node, 0], t1, child[node, 1], t2, child[node, 2], t3, child[node, 3]
+    )
+
+
+@jit_inline
+def nearest_first4(t0, c0, t1, c1, t2, c2, t3, c3):
+    """Four (t, item) pairs sorted by t, nearest first: a network of five compare-exchanges."""
     t0, c0, t1, c1 = nearer_first(t0, c0, t1, c1)
     t2, c2, t3, c3 = nearer_first(t2, c2, t3, c3)
     t0, c0, t2, c2 = nearer_first(t0, c0, t2, c2)

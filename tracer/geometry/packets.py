@@ -20,7 +20,7 @@ from tracer.geometry.intersect import (
     _slab4,
     closer,
     intersect_triangle,
-    nearer_first,
+    nearest_first4,
     ray_setup,
 )
 from tracer.kernel.jit import jit_inline
@@ -41,12 +41,12 @@ def _push(stack_node, stack_key, sp, node, slot_keys, slot):
 @jit_inline
 def packet_closest(
     node_bounds, node_child, tri_verts, tri_prim, origins, directions, t_max, i0, ray_f, ray_i,
-    best_key, hit_t, hit_j, hit_prim, hit_b, entry_key, slot_keys, stack_node, stack_key,
+    best_key, hit_t, hit_j, hit_b, entry_key, slot_keys, stack_node, stack_key,
 ):  # fmt: skip
     """Closest hits of rays ``i0 .. i0 + PACKET - 1`` of ``origins``/``directions`` in one BVH.
 
     Ray ``r``'s hit goes to ``hit_t[r]`` (``t_max`` for a miss), ``hit_j[r]`` (the triangle's
-    row, -1 for a miss), ``hit_prim[r]`` and ``hit_b[r]`` (barycentrics). The other arrays are
+    row, -1 for a miss) and ``hit_b[r]`` (barycentrics). The other arrays are
     scratch: ``ray_f`` float64 (PACKET, 12), ``ray_i`` int64 (PACKET, 6), ``best_key`` and
     ``entry_key`` float64 (PACKET,), ``slot_keys`` float64 (4, PACKET), ``stack_key`` float64
     (stack size, PACKET). Returns the packet's work: node visits plus triangle tests (one per
@@ -66,7 +66,6 @@ def packet_closest(
         best_key[r] = t_max[i]
         hit_t[r] = t_max[i]
         hit_j[r] = -1
-        hit_prim[r] = NO_INSTANCE  # the tie-break key of "no hit yet"
         entry_key[r] = 0.0
     work = 0
     sp = 0
@@ -104,12 +103,7 @@ def packet_closest(
                 m1 = min(m1, t1)
                 m2 = min(m2, t2)
                 m3 = min(m3, t3)
-            s0, s1, s2, s3 = 0, 1, 2, 3
-            m0, s0, m1, s1 = nearer_first(m0, s0, m1, s1)
-            m2, s2, m3, s3 = nearer_first(m2, s2, m3, s3)
-            m0, s0, m2, s2 = nearer_first(m0, s0, m2, s2)
-            m1, s1, m3, s3 = nearer_first(m1, s1, m3, s3)
-            m1, s1, m2, s2 = nearer_first(m1, s1, m2, s2)
+            m0, s0, m1, s1, m2, s2, m3, s3 = nearest_first4(m0, 0, m1, 1, m2, 2, m3, 3)
             if m3 < np.inf:
                 sp = _push(stack_node, stack_key, sp, node_child[entry, s3], slot_keys, s3)
             if m2 < np.inf:
@@ -134,14 +128,19 @@ def packet_closest(
                         ray_i[r, 4], ray_i[r, 5], ray_f[r, 3], ray_f[r, 4], ray_f[r, 5],
                         best_key[r],
                     )  # fmt: skip
+                    if not t < np.inf:
+                        continue
+                    # The tie-break key of the best hit: (0, its triangle), or "no hit yet".
+                    best_inst = NO_INSTANCE
+                    best_prim = NO_INSTANCE
+                    if hit_j[r] >= 0:
+                        best_inst = 0
+                        best_prim = tri_prim[hit_j[r]]
                     key = max(t, floor)
-                    best_inst = 0 if hit_j[r] >= 0 else NO_INSTANCE
-                    if t < np.inf and closer(key, 0, tri_prim[j], best_key[r], best_inst,
-                                             hit_prim[r]):  # fmt: skip
+                    if closer(key, 0, tri_prim[j], best_key[r], best_inst, best_prim):
                         best_key[r] = key
                         hit_t[r] = t
                         hit_j[r] = j
-                        hit_prim[r] = tri_prim[j]
                         hit_b[r, 0] = b0
                         hit_b[r, 1] = b1
                         hit_b[r, 2] = b2

@@ -128,7 +128,6 @@ def _closest_packets(
     best_key = np.empty(PACKET)
     hit_t = np.empty(PACKET)
     hit_j = np.empty(PACKET, np.int64)
-    hit_prim = np.empty(PACKET, np.int64)
     hit_b = np.zeros((PACKET, 3))
     entry_key = np.empty(PACKET)
     slot_keys = np.empty((4, PACKET))
@@ -140,8 +139,8 @@ def _closest_packets(
         while i0 + PACKET <= end:
             cost[i0] = packet_closest(
                 node_bounds, node_child, tri_verts, tri_prim, origins, directions, t_max, i0,
-                ray_f, ray_i, best_key, hit_t, hit_j, hit_prim, hit_b, entry_key, slot_keys,
-                stack_node, stack_key,
+                ray_f, ray_i, best_key, hit_t, hit_j, hit_b, entry_key, slot_keys, stack_node,
+                stack_key,
             )  # fmt: skip
             for r in range(PACKET):
                 _store_hit(i0 + r, hit_j[r], hit_t[r], hit_b[r, 0], hit_b[r, 1], hit_b[r, 2],
