@@ -66,6 +66,7 @@ def job_state(state: SceneState, request: dict) -> SceneState:
         spp=request.get("spp"),
         seed=request.get("seed"),
         max_depth=request.get("max_depth"),
+        kernel=request.get("kernel"),
     )
 
 

@@ -4,6 +4,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
+from tracer.integrators.names import KERNELS
 from tracer.scene import format as fmt
 
 MAX_CAMERA_PATH = 10_000
@@ -188,6 +189,11 @@ class JobCreate(Strict):
     height: int | None = Field(default=None, ge=1)
     seed: int | None = Field(default=None, ge=0, lt=2**63)
     max_depth: int | None = Field(default=None, ge=1, le=1024)
+    kernel: Literal[KERNELS] | None = Field(
+        default=None,
+        description="how paths are traced (the scene's render.kernel by default); the same "
+        "image either way",
+    )
     frames: list[Annotated[int, Field(ge=0, lt=MAX_JOB_FRAMES)]] | None = Field(
         default=None,
         max_length=MAX_JOB_FRAMES,

@@ -232,8 +232,9 @@ def effects(compiled, render) -> dict:
     ``tracer.integrators.effects.effect_plan`` of the compiled scene under its render settings
     (the same function, so the same answer)."""
     from tracer.integrators.effects import effect_plan
+    from tracer.integrators.kernel_choice import plan_report
 
-    return effect_plan(compiled, render).to_json()
+    return plan_report(effect_plan(compiled, render), render)
 
 
 def summary(state: SceneState, compiled=None) -> dict:

@@ -1,15 +1,20 @@
-"""Whole-renderer ray throughput per sample scene, as the Ray Accelerator paper measures it.
+"""Whole-renderer ray throughput per sample scene and kernel, as the Ray Accelerator paper
+measures it (its Table 1 compares SINGLERAY, PACKET, SIMD and HYBRID renderers).
 
-For every sample scene (``scenes/*``), the renderer's own path (``tracer.render.render_image``:
+For every sample scene (``scenes/*``), the renderer's own path (``tracer.render.render_pixels``:
 camera rays, traversal, shading, light sampling, Russian roulette and the frame buffer) renders
-one frame on ``--threads`` threads, after a warm-up that compiles or loads the kernels. Reported
-per scene: M samples/s and M rays/s (median and best of ``--repeats``), where the rays are every
-traversal the kernel made (camera, continuation and shadow rays, as ``out_rays`` counts them),
-and rays per sample. This is the single-ray kernel's row of issue #23's table: the stream and
-packet kernels, once built, get their own columns beside it.
+one frame on ``--threads`` threads with each of ``--kernels`` (``single``: a path at a time;
+``stream``: a stream of paths a stage at a time), after a warm-up that compiles or loads the
+kernels. In each round every kernel renders once, in turns, so they see the same machine load.
+Reported per scene and kernel: M samples/s and M rays/s (median and best of ``--repeats``),
+where the rays are every traversal the kernel made (camera, continuation and shadow rays, as
+``out_rays`` counts them); the stream / single ratio (median of per-round ratios); which
+kernel ``render.kernel: auto`` picks; and whether the kernels' images are bit-identical.
+The renderer has no packet kernel (packets exist for ``closest_hits`` only: ``bench/packets.py``).
 """
 
 import argparse
+import statistics
 import time
 
 from common import (
@@ -38,6 +43,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--scenes", nargs="*", help="names of scenes/ folders (default: every sample scene)"
     )
+    parser.add_argument(
+        "--kernels",
+        nargs="+",
+        choices=("single", "stream"),
+        default=["single", "stream"],
+        help="kernels to measure side by side",
+    )
     args = parser.parse_args(argv)
     if min(args.width, args.height, args.spp, args.repeats, args.threads) < 1:
         parser.error("--width, --height, --spp, --repeats and --threads must be at least 1")
@@ -47,6 +59,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def measure(args: argparse.Namespace) -> dict[str, dict]:
     from cli.commands.samples import sample_scene_files
     from tracer.compiled.scene import compile_scene
+    from tracer.integrators.effects import effect_plan
+    from tracer.integrators.kernel_choice import choose_kernel
     from tracer.render import render_pixels
     from tracer.scene.format import override
     from tracer.scene.loader import load_scene
@@ -63,33 +77,55 @@ def measure(args: argparse.Namespace) -> dict[str, dict]:
         camera = override(scene.camera, width=args.width, height=args.height)
         settings = override(scene.render, spp=args.spp)
         pixels = camera.width * camera.height
+        auto = choose_kernel(settings, effect_plan(scene, settings).flags).name
 
-        def render(scene=scene, camera=camera, settings=settings, pixels=pixels):
+        def render(kernel, scene=scene, camera=camera, settings=settings, pixels=pixels):
+            chosen = override(settings, kernel=kernel)
             start = time.perf_counter()
-            run = render_pixels(scene, 0, pixels, camera, settings, threads=args.threads)
-            return time.perf_counter() - start, int(run.rays.sum())
+            run = render_pixels(scene, 0, pixels, camera, chosen, threads=args.threads)
+            return time.perf_counter() - start, int(run.rays.sum()), run.rgb.tobytes()
 
-        render()  # warm-up: compile or load the kernels
-        samples = Series("samples", pixels * settings.spp)
+        images = {kernel: render(kernel)[2] for kernel in args.kernels}  # warm-up
+        samples = {k: Series("samples", pixels * settings.spp) for k in args.kernels}
         ray_counts = set()
-        for _ in range(args.repeats):
-            seconds, rays = render()
-            samples.seconds.append(seconds)
-            ray_counts.add(rays)
+        for round_ in range(args.repeats):
+            order = args.kernels if round_ % 2 == 0 else args.kernels[::-1]
+            for kernel in order:
+                seconds, rays, _ = render(kernel)
+                samples[kernel].seconds.append(seconds)
+                ray_counts.add(rays)
         if len(ray_counts) != 1:
             raise RuntimeError(f"{name}: the ray count changed between renders: {ray_counts}")
         rays = ray_counts.pop()
-        traced = Series("rays", rays, samples.seconds)
+        kernels = {}
+        for kernel, series in samples.items():
+            traced = Series("rays", rays, series.seconds)
+            kernels[kernel] = {
+                "samples": series.summary(1e6),
+                "rays_per_second": traced.summary(1e6),
+            }
+        paired = None
+        if {"single", "stream"} <= set(samples):
+            per_round = [
+                a / b
+                for a, b in zip(samples["single"].seconds, samples["stream"].seconds, strict=True)
+            ]
+            paired = statistics.median(per_round)
         results[name] = {
             "integrator": settings.integrator,
             "triangles": scene.stats.triangles,
             "max_depth": settings.max_depth,
             "rays": rays,
-            "rays_per_sample": rays / samples.work,
-            "samples": samples.summary(1e6),
-            "rays_per_second": traced.summary(1e6),
+            "rays_per_sample": rays / (pixels * settings.spp),
+            "kernels": kernels,
+            "stream_over_single": paired,
+            "auto": auto,
+            "bit_identical": len(set(images.values())) == 1,
         }
-        console.print(f"[dim]{name}: {traced.median_rate / 1e6:.2f} M rays/s[/]")
+        rates = ", ".join(
+            f"{k} {v['rays_per_second']['median_rate']:.2f}" for k, v in kernels.items()
+        )
+        console.print(f"[dim]{name}: {rates} M rays/s[/]")
     return results
 
 
@@ -98,24 +134,38 @@ def main(argv: list[str] | None = None) -> None:
     info = machine_info()
     print_machine(info)
     results = measure(args)
-    rows = [
-        (
-            name,
-            r["integrator"],
-            f"{r['triangles']:,}",
-            f"{r['rays_per_sample']:.2f}",
-            f"{r['samples']['median_rate']:.3f}",
-            f"{r['rays_per_second']['median_rate']:.2f}",
-            f"{r['rays_per_second']['best_rate']:.2f}",
+    rows = []
+    for name, r in results.items():
+        rates = [f"{r['kernels'][k]['rays_per_second']['median_rate']:.2f}" for k in args.kernels]
+        ratio = r["stream_over_single"]
+        rows.append(
+            (
+                name,
+                r["integrator"],
+                f"{r['triangles']:,}",
+                f"{r['rays_per_sample']:.2f}",
+                *rates,
+                "-" if ratio is None else f"{ratio:.2f}x",
+                r["auto"],
+                "yes" if r["bit_identical"] else "NO",
+            )
         )
-        for name, r in results.items()
-    ]
     print_table(
-        f"Whole renderer, single-ray kernel, {args.width}x{args.height} at {args.spp} spp, "
-        f"{args.threads} threads, {args.repeats} renders each",
-        ["scene", "integrator", "triangles", "rays/sample", "M samples/s", "M rays/s", "best"],
+        f"Whole renderer, {args.width}x{args.height} at {args.spp} spp, {args.threads} threads, "
+        f"{args.repeats} rounds",
+        [
+            "scene",
+            "integrator",
+            "triangles",
+            "rays/sample",
+            *(f"{k} M rays/s" for k in args.kernels),
+            "stream/single",
+            "auto",
+            "same bits",
+        ],
         rows,
-        caption="rays: every traversal (camera, continuation, shadow); medians unless 'best'",
+        caption="rays: every traversal (camera, continuation, shadow); medians; the ratio is "
+        "the median of per-round ratios",
     )
     write_results("renderer_mrays", {"options": vars(args), "scenes": results}, info)
 

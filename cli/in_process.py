@@ -6,6 +6,7 @@ from pathlib import Path
 from cli.output import note_compiling, progress_bar, stderr, write_output
 from tracer.compiled.scene import CompiledScene
 from tracer.integrators.effects import effect_plan
+from tracer.integrators.kernel_choice import plan_report
 from tracer.io.metadata import image_metadata
 from tracer.render import render_image, render_lines
 from tracer.scene import format as fmt
@@ -44,7 +45,7 @@ def render_to_file(
 
         image, _ = render_image(scene, camera, settings, threads=threads, on_lines=on_lines)
     seconds = time.perf_counter() - start
-    plan = effect_plan(scene, settings).to_json()
+    plan = plan_report(effect_plan(scene, settings), settings)
     metadata = image_metadata(camera, settings, plan, seconds, sum(rays), "in-process")
     for path in outputs:
         write_output(path, image, metadata)

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 from cli.errors import UsageError
 from tracer.errors import TilerenderError
-from tracer.integrators.names import INTEGRATORS
+from tracer.integrators.names import INTEGRATORS, KERNELS
 
 EXIT_FAILED = 1
 EXIT_USAGE = 2
@@ -166,6 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument(
         "--max-depth", type=positive_int, help="path vertices after the camera (as for render)"
     )
+    add_kernel_option(plan)
 
     sub.add_parser(
         "schema",
@@ -225,6 +226,16 @@ def add_serve_parser(sub) -> None:
     add_cluster_options(serve, frames=False)
 
 
+def add_kernel_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--kernel",
+        choices=KERNELS,
+        help="how paths are traced: single (a path at a time), stream (a stream of paths a "
+        "stage at a time) or auto (default: the measured rule, docs/performance.md); the "
+        "same image bit for bit",
+    )
+
+
 def add_render_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spp", type=positive_int, help="samples per pixel")
     parser.add_argument("--width", type=positive_int, help="image width in pixels")
@@ -240,6 +251,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         type=positive_int,
         help="path vertices after the camera: 1 = emitters only, 2 = direct light",
     )
+    add_kernel_option(parser)
     parser.add_argument(
         "--threads",
         type=positive_int,

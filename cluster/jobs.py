@@ -22,13 +22,19 @@ def with_overrides(
     seed: int | None = None,
     max_depth: int | None = None,
     integrator: str | None = None,
+    kernel: str | None = None,
 ) -> SceneState:
     """``state`` with its camera's size and its render settings overridden (None keeps the
     scene's value); SceneError names a value a scene file could not hold either."""
     try:
         camera = fmt.override(state.camera, width=width, height=height)
         render = fmt.override(
-            state.render, spp=spp, seed=seed, max_depth=max_depth, integrator=integrator
+            state.render,
+            spp=spp,
+            seed=seed,
+            max_depth=max_depth,
+            integrator=integrator,
+            kernel=kernel,
         )
     except pydantic.ValidationError as exc:
         raise SceneError(format_validation_error(exc)) from None

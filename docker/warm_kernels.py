@@ -1,7 +1,8 @@
 """Fill numba's kernel cache while the image is built, so no container compiles at start.
 
 The path kernel has four builds (``tracer.integrators.path.KERNELS``: with or without the material
-dispatch, with or without point/spot/sun/sky lights); a scene needs the one its effect plan picks.
+dispatch, with or without point/spot/sun/sky lights), and so has the stream kernel; a scene needs
+the build its effect plan and kernel choice pick (``tracer.integrators.kernel_choice``).
 This renders one pixel of the first sample scene that needs each build, in this process (no Ray),
 which compiles it into ``NUMBA_CACHE_DIR`` (set from ``TILERENDER_NUMBA_CACHE`` by ``tracer``).
 Tracers in containers of the image then load the kernels from there (numba recompiles only on a
@@ -16,7 +17,7 @@ from pathlib import Path
 
 from tracer.compiled.scene import compile_scene
 from tracer.integrators.effects import effect_plan
-from tracer.integrators.path import KERNELS, kernel_for
+from tracer.integrators.kernel_choice import chosen_kernel
 from tracer.kernel import numba_cache
 from tracer.render import render_lines
 from tracer.scene import format as fmt
@@ -30,15 +31,13 @@ def warm(scenes: Path) -> list[str]:
         scene = compile_scene(load_scene(path))
         settings = fmt.override(scene.render, spp=1)
         plan = effect_plan(scene, settings)
-        kernel = kernel_for(plan.flags)
+        kernel = chosen_kernel(settings, plan.flags)
         if id(kernel) in warmed:
             continue
         start = time.perf_counter()
         tiny = fmt.override(scene.camera, width=1, height=1)
         render_lines(scene, 0, 1, tiny, settings, threads=1, plan=plan)
         warmed[id(kernel)] = f"{path.parent.name} ({time.perf_counter() - start:.1f} s)"
-        if len(warmed) == len(KERNELS):
-            break
     return list(warmed.values())
 
 
@@ -48,7 +47,7 @@ def main(argv: list[str]) -> int:
         return 2
     done = warm(Path(argv[0]))
     cache = numba_cache.configure()
-    print(f"warmed {len(done)} of {len(KERNELS)} kernel builds in {cache}: {', '.join(done)}")
+    print(f"warmed {len(done)} kernel builds in {cache}: {', '.join(done)}")
     return 0
 
 

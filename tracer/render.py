@@ -18,6 +18,7 @@ import numpy as np
 
 from tracer.compiled.scene import CompiledScene
 from tracer.integrators.effects import EffectPlan, effect_plan
+from tracer.integrators.kernel_choice import chosen_kernel
 from tracer.integrators.pixels import pixel_run, trace_run
 from tracer.integrators.registry import REGISTRY
 from tracer.io.heatmap import cost_heatmap
@@ -127,7 +128,7 @@ def render_pixels(
     integrator = REGISTRY[settings.integrator]
     start = time.perf_counter()
     run = pixel_run(scene, camera, settings, p0, p1, frame, sample_start, plan.flags)
-    kernel = integrator.kernel(plan.flags)
+    kernel = chosen_kernel(settings, plan.flags)
     rgb, cost, rays = trace_run(kernel, integrator.arguments(scene, run), run, threads)
     if integrator.heat_map:
         rgb = cost_heatmap(cost, settings.spp)

@@ -36,6 +36,7 @@ from tracer.accuracy.spot_check import render_spot_checks
 from tracer.errors import SceneError
 from tracer.geometry.query import SceneHits
 from tracer.integrators.effects import effect_plan
+from tracer.integrators.kernel_choice import chosen_kernel, plan_report
 from tracer.kernel import numba_cache
 from tracer.kernel.threads import default_threads
 from tracer.render import render_lines, render_pixels
@@ -239,7 +240,7 @@ class Tracer:
         units = WorkUnits(*replace(request, camera=camera).view(), spans)
         first = request.first_pixel
         plan = effect_plan(compiled, settings)
-        effects = plan.to_json()
+        effects = plan_report(plan, settings)
 
         def render_units(a: int, b: int, since: float, apply_seconds: float = 0.0) -> UnitsResult:
             if b > a:
@@ -332,8 +333,6 @@ class Tracer:
         numba's on-disk cache when another process compiled it) before the first frame.
         Returns the seconds taken, numba's cache hits and misses for the kernel, the cache
         directory, and this process's pid and node."""
-        from tracer.integrators.path import kernel_for
-
         if not self.replicas:
             raise SceneError("warm_up needs a scene: send a snapshot first")
         scene = next(reversed(self.replicas.values())).current
@@ -342,7 +341,7 @@ class Tracer:
         settings = fmt.override(scene.render, spp=1)
         plan = effect_plan(scene, settings)
         render_lines(scene, 0, 1, tiny, settings, threads=1, plan=plan)
-        stats = kernel_for(plan.flags).stats
+        stats = chosen_kernel(settings, plan.flags).stats
         return {
             "seconds": time.perf_counter() - start,
             "cache_hits": sum(stats.cache_hits.values()),

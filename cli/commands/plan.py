@@ -7,17 +7,20 @@ import sys
 from cluster.jobs import with_overrides
 from tracer.compiled.scene import compile_scene
 from tracer.integrators.effects import effect_plan
+from tracer.integrators.kernel_choice import plan_report
 from tracer.scene.loader import load_scene
 
 
 def run(args: argparse.Namespace) -> int:
     state = load_scene(args.scene)
     scene = compile_scene(state)
-    settings = with_overrides(state, integrator=args.integrator, max_depth=args.max_depth).render
+    settings = with_overrides(
+        state, integrator=args.integrator, max_depth=args.max_depth, kernel=args.kernel
+    ).render
     report = {
         "scene": args.scene,
         "integrator": settings.integrator,
-        **effect_plan(scene, settings).to_json(),
+        **plan_report(effect_plan(scene, settings), settings),
     }
     json.dump(report, sys.stdout, indent=2)
     print()

@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         max_depth=args.max_depth,
         integrator=args.integrator,
+        kernel=args.kernel,
     )
     camera, settings = state.camera, state.render
     frames = frame_selection(state, args.frames)

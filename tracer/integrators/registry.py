@@ -2,7 +2,8 @@
 its arguments, and what the effect plan needs to know of it.
 
 ``path``, ``direct`` (a path of two vertices), ``whitted`` and ``cost`` (the path kernel's work
-as a heat map, ``tracer.io.heatmap``) run ``tracer.integrators.path``; ``ao``, ``albedo``,
+as a heat map, ``tracer.io.heatmap``) run ``tracer.integrators.path`` or, path for path the
+same, ``tracer.integrators.stream``; ``ao``, ``albedo``,
 ``normal`` and ``depth`` run ``tracer.integrators.surface``. The names are the scene format's
 (``tracer.integrators.names.INTEGRATORS``; a test keeps them equal).
 """
@@ -15,7 +16,7 @@ import numpy as np
 from tracer import config
 from tracer.compiled.arrays import SceneArrays
 from tracer.compiled.scene import CompiledScene
-from tracer.integrators import path, surface
+from tracer.integrators import path, stream, surface
 from tracer.integrators.flags import INDIRECT, TEXTURES, light_kinds
 from tracer.integrators.pixels import PixelRun
 from tracer.maths import portable
@@ -30,8 +31,9 @@ class Integrator:
     """An integrator: its kernel for a plan's flags, its arguments, and its traits."""
 
     name: str
-    kernel: Callable[[int], Callable[..., None]]
-    """The jitted kernel for a plan's flags (``tracer.integrators.pixels.trace_run`` calls it)."""
+    kernels: dict[str, Callable[[int], Callable[..., None]]]
+    """Kernel name (``single``, ``stream``) -> the jitted kernel for a plan's flags
+    (``tracer.integrators.pixels.trace_run`` calls it); ``single`` always exists."""
     arguments: Arguments
     samples_lights: bool
     """Whether it samples lights (next-event estimation)."""
@@ -86,7 +88,8 @@ def _path(name: str, mode: int, indirect: bool, heat_map: bool = False) -> Integ
             run.flags,
         )
 
-    return Integrator(name, path.kernel_for, arguments, True, indirect, True, heat_map)
+    kernels = {"single": path.kernel_for, "stream": stream.kernel_for}
+    return Integrator(name, kernels, arguments, True, indirect, True, heat_map)
 
 
 def _surface(name: str, output: int) -> Integrator:
@@ -114,7 +117,7 @@ def _surface(name: str, output: int) -> Integrator:
     def kernel(flags: int) -> Callable[..., None]:
         return surface.render_surface
 
-    return Integrator(name, kernel, arguments, False, False, output == surface.ALBEDO)
+    return Integrator(name, {"single": kernel}, arguments, False, False, output == surface.ALBEDO)
 
 
 REGISTRY: dict[str, Integrator] = {

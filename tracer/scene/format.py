@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from tracer import config
-from tracer.integrators.names import INTEGRATORS
+from tracer.integrators.names import INTEGRATORS, KERNELS
 from tracer.maths import portable
 from tracer.scene.format_animation import (
     MAX_FRAMES,
@@ -271,6 +271,12 @@ class RenderSettings(Strict):
         default=True,
         description="Simulate only the effects the scene needs; false runs every effect "
         "(the same image in expectation, slower: for checking the plan)",
+    )
+    kernel: Literal[KERNELS] = Field(
+        default="auto",
+        description="How paths are traced: single (one path at a time), stream (a stream of "
+        "paths a stage at a time), or auto (the choice the measured rule makes for the "
+        "integrator and scene; docs/performance.md). The same image bit for bit either way",
     )
     ao_samples: int = Field(
         default=4, ge=1, le=1024, description="Ambient occlusion rays per camera sample"
