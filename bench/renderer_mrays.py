@@ -59,7 +59,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def measure(args: argparse.Namespace) -> dict[str, dict]:
     from cli.commands.samples import sample_scene_files
     from tracer.compiled.scene import compile_scene
-    from tracer.integrators.effects import effect_plan
     from tracer.integrators.kernel_choice import choose_kernel
     from tracer.render import render_pixels
     from tracer.scene.format import override
@@ -77,7 +76,7 @@ def measure(args: argparse.Namespace) -> dict[str, dict]:
         camera = override(scene.camera, width=args.width, height=args.height)
         settings = override(scene.render, spp=args.spp)
         pixels = camera.width * camera.height
-        auto = choose_kernel(settings, effect_plan(scene, settings).flags).name
+        auto = choose_kernel(settings).name
 
         def render(kernel, scene=scene, camera=camera, settings=settings, pixels=pixels):
             chosen = override(settings, kernel=kernel)

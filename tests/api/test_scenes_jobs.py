@@ -145,6 +145,26 @@ def test_still_job_equals_render_image_and_formats(client, tmp_path):
     assert exr.status_code == 200 and exr.content[:4] == b"\x76\x2f\x31\x01"
 
 
+def test_job_kernel_choice_same_pixels_and_bad_kernel_refused(client):
+    """A job may name the kernel: the stream kernel's frame is the single-ray kernel's, bit for
+    bit, through the cluster; the frame metadata says which ran; an unknown kernel is a 422
+    naming the field, and no job is made."""
+    scene = upload_tiny(client)
+    frames = {}
+    for kernel in ("single", "stream"):
+        body = {"scene_id": scene["id"], "spp": 2, "width": 12, "height": 8, "kernel": kernel}
+        r = client.post("/v1/jobs", json=body)
+        assert r.status_code == 202, r.text
+        job = wait_job(client, r.json()["id"])
+        assert job["status"] == "done", job
+        frames[kernel] = client.get(f"/v1/jobs/{job['id']}/result?format=npy").content
+    assert frames["single"] == frames["stream"]
+    jobs_before = client.get("/v1/jobs").json()["count"]
+    r = client.post("/v1/jobs", json={"scene_id": scene["id"], "kernel": "gpu"})
+    assert r.status_code == 422 and "kernel" in r.text
+    assert client.get("/v1/jobs").json()["count"] == jobs_before
+
+
 def test_textured_bundle_renders_like_the_library(client):
     """The textured sample scene uploaded as a bundle (JSON, GLB, OBJ, MTL, PNGs) renders
     through the cluster exactly as the library renders it: its images and UVs reach the

@@ -319,6 +319,29 @@ def test_plan_prints_the_effect_plan(capsys, tmp_path):
     assert json.loads(out)["reasons"]["shadows"] == "switched off in render.effects"
 
 
+def test_kernel_option_on_plan_and_render(capsys, tmp_path, tiny_scene_file):
+    """`--kernel` picks the kernel: `plan` reports it with its reason, `render` writes the same
+    pixels with either, and an unknown kernel is a usage error (exit code 2)."""
+    cornell = ROOT / "scenes" / "cornell-box" / "scene.json"
+    code, out, err = run(capsys, "plan", cornell)
+    assert code == 0, err
+    assert json.loads(out)["kernel"] == "single"
+    code, out, err = run(capsys, "plan", cornell, "--kernel", "stream")
+    report = json.loads(out)
+    assert report["kernel"] == "stream" and report["kernel_reason"] == "set in render.kernel"
+    images = {}
+    for kernel in ("single", "stream"):
+        out_file = tmp_path / f"{kernel}.npy"
+        args = ("-o", out_file, "--width", 8, "--height", 6, "--spp", 2, "-q", "--kernel", kernel)
+        code, _, err = run(capsys, "render", tiny_scene_file, *args)
+        assert code == 0, err
+        images[kernel] = read_image(out_file)
+    assert images["single"].tobytes() == images["stream"].tobytes()
+    code, _, err = run(capsys, "plan", cornell, "--kernel", "gpu")
+    assert_usage_error(code, err)
+    assert "invalid choice: 'gpu'" in err
+
+
 def test_plan_and_info_show_textures(capsys, tmp_path):
     """The textured sample scene's plan runs texture lookups and says why; `info` lists its
     images (width, height); a missing texture is a usage error (exit code 2), not a crash."""

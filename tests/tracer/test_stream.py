@@ -92,21 +92,26 @@ def test_whitted_and_direct_stream_match_single_ray(spheres):
 
 
 def test_kernel_choice_follows_settings_and_rule(cornell, spheres):
-    """``render.kernel`` names the kernel; ``auto`` streams where the plan has material effects;
-    the surface integrators have one kernel whatever is asked."""
+    """``render.kernel`` names the kernel; ``auto`` takes the measured rule (the single-ray
+    kernel, with or without material effects); the surface integrators have one kernel whatever
+    is asked; the plan report says which and why."""
     for name in ("single", "stream"):
         render = fmt.override(cornell.render, kernel=name)
-        assert choose_kernel(render, effect_plan(cornell, render).flags).name == name
+        assert choose_kernel(render).name == name
     lambertian = effect_plan(cornell, cornell.render).flags
-    assert not lambertian & flags.MATERIAL_EFFECTS
-    assert choose_kernel(cornell.render, lambertian).name == "single"
     glossy = effect_plan(spheres, spheres.render).flags
-    assert glossy & flags.MATERIAL_EFFECTS
-    assert choose_kernel(spheres.render, glossy).name == "stream"
+    assert glossy & flags.MATERIAL_EFFECTS and not lambertian & flags.MATERIAL_EFFECTS
+    assert cornell.render.kernel == spheres.render.kernel == "auto"
+    assert choose_kernel(cornell.render) == choose_kernel(spheres.render)
+    assert choose_kernel(spheres.render).name == "single"
     ao = fmt.override(cornell.render, integrator="ao", kernel="stream")
-    assert choose_kernel(ao, lambertian).name == "single"
+    assert choose_kernel(ao).name == "single"
     report = plan_report(effect_plan(spheres, spheres.render), spheres.render)
-    assert report["kernel"] == "stream" and "material" in report["kernel_reason"]
+    assert report["kernel"] == "single" and "renderer_mrays" in report["kernel_reason"]
+    forced = fmt.override(spheres.render, kernel="stream")
+    assert plan_report(effect_plan(spheres, forced), forced)["kernel_reason"] == (
+        "set in render.kernel"
+    )
 
 
 def test_unknown_kernel_is_refused():
