@@ -2,6 +2,9 @@
 scene its pixels, work and ray counts are the single-ray kernel's bit for bit, however the
 frame is split and however many threads render it."""
 
+import json
+import subprocess
+import sys
 from itertools import pairwise
 
 import numpy as np
@@ -127,3 +130,43 @@ def test_render_image_uses_the_chosen_kernel(cornell):
         for k in ("single", "stream", "auto")
     ]
     assert images[0].tobytes() == images[1].tobytes() == images[2].tobytes()
+
+
+WARM_CHILD = """
+import json
+from tracer.compiled.scene import compile_scene
+from tracer.integrators.effects import effect_plan
+from tracer.integrators.kernel_choice import chosen_kernel
+from tracer.render import render_image
+from tracer.scene import format as fmt
+from tracer.scene.loader import load_scene
+scene = compile_scene(load_scene({path!r}))
+camera = fmt.override(scene.camera, width=2, height=2)
+out = {{}}
+for kernel in ("single", "stream"):
+    settings = fmt.override(scene.render, spp=1, kernel=kernel)
+    render_image(scene, camera, settings)
+    stats = chosen_kernel(settings, effect_plan(scene, settings).flags).stats
+    out[kernel] = [sum(stats.cache_hits.values()), sum(stats.cache_misses.values())]
+print(json.dumps(out))
+"""
+
+
+def test_both_kernels_load_from_the_disk_cache_in_a_new_process():
+    """A second process finds both kernels in numba's on-disk cache: no recompiling at warm
+    start (a kernel closing over a jitted helper would miss every time: the cache key pickles
+    closure cells)."""
+    code = WARM_CHILD.format(path=str(REPO_SCENES / "cornell-box" / "scene.json"))
+    counts = []
+    for _ in range(2):  # the first may compile what this process has not
+        done = subprocess.run(
+            [sys.executable, "-c", code],
+            cwd=REPO_SCENES.parent,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            check=False,
+        )
+        assert done.returncode == 0, done.stderr[-3000:]
+        counts.append(json.loads(done.stdout.splitlines()[-1]))
+    assert counts[1] == {"single": [1, 0], "stream": [1, 0]}

@@ -28,7 +28,7 @@ from tracer.geometry.scene_intersect import scene_closest, scene_occluded
 from tracer.integrators import flags
 from tracer.integrators.vertex import PATH, SHADERS, WHITTED, camera_path
 from tracer.kernel.borrow import borrowed
-from tracer.kernel.jit import jit
+from tracer.kernel.jit import jit, with_globals
 from tracer.maths.rng import pixel_key, sample_key
 from tracer.shading.camera import camera_sample_ray
 
@@ -42,13 +42,13 @@ def path_kernel(materials: bool, lights: bool):
     """The path kernel compiled with or without the material dispatch (``materials``) and
     the point, spot, sun and sky code (``lights``).
 
-    Both are constants of the returned kernel (closure variables, which numba freezes): the
-    code they switch off is removed before type inference, so a scene of Lambertian surfaces
-    and emissive triangles (the Cornell box) never compiles the BSDFs or the other lights.
+    Both pick the build of the vertex shader the kernel inlines (``vertex.SHADERS``), where
+    they are constants: the code they switch off is removed before type inference, so a scene
+    of Lambertian surfaces and emissive triangles (the Cornell box) never compiles the BSDFs
+    or the other lights.
     Every other effect of the plan is a runtime flag. ``docs/effects.md`` measures this
     against one kernel for every plan and against one kernel per plan.
     """
-    shade = SHADERS[(materials, lights)]
 
     def trace_pixels(
         scene,
@@ -114,7 +114,7 @@ def path_kernel(materials: bool, lights: bool):
                         k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
                         cost += c
                         rays += 1
-                        go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld = shade(
+                        go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld = shade(  # noqa: F821 (with_globals binds it)
                             s, key, d, k, j, t, b0, b1, b2, state, mode, plan, max_depth,
                             rr_depth, shadow_t_max,
                         )  # fmt: skip
@@ -139,7 +139,7 @@ def path_kernel(materials: bool, lights: bool):
                 out_rays[row, x] = rays
 
     trace_pixels.__qualname__ = f"trace_pixels_{'m' if materials else 'l'}{'o' if lights else 't'}"
-    return jit(trace_pixels)
+    return jit(with_globals(trace_pixels, shade=SHADERS[(materials, lights)]))
 
 
 KERNELS = {(m, o): path_kernel(m, o) for m in (False, True) for o in (False, True)}

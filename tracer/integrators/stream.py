@@ -22,7 +22,7 @@ from tracer.integrators import flags
 from tracer.integrators.path import PIXEL_BLOCK, build_for
 from tracer.integrators.vertex import SHADERS, camera_path
 from tracer.kernel.borrow import borrowed
-from tracer.kernel.jit import jit, jit_inline
+from tracer.kernel.jit import jit, jit_inline, with_globals
 from tracer.maths.rng import pixel_key, sample_key
 from tracer.shading.camera import camera_sample_ray
 
@@ -79,7 +79,6 @@ def _material_runs(s, hit_i, n, order, counts):
 def stream_kernel(materials: bool, lights: bool):
     """The stream kernel for a build of ``shade`` (as ``tracer.integrators.path.path_kernel``);
     the same arguments as the path kernel's."""
-    shade = SHADERS[(materials, lights)]
 
     def trace_stream(
         scene, camera, width, height, p0, p1, sample_start, spp, max_depth, rr_depth, seed,
@@ -159,7 +158,7 @@ def stream_kernel(materials: bool, lights: bool):
                 for r in range(n):
                     q = order[r]
                     d = (path_f[q, 3], path_f[q, 4], path_f[q, 5])
-                    go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld = shade(
+                    go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld = shade(  # noqa: F821 (with_globals binds it)
                         s, path_key[q], d, hit_i[q, 0], hit_i[q, 1], hit_f[q, 0], hit_f[q, 1],
                         hit_f[q, 2], hit_f[q, 3], _load_state(path_f, path_i, q), mode, plan,
                         max_depth, rr_depth, shadow_t_max,
@@ -218,7 +217,7 @@ def stream_kernel(materials: bool, lights: bool):
                 out_rays[row, x] = pixel_rays[lp]
 
     trace_stream.__qualname__ = f"trace_stream_{'m' if materials else 'l'}{'o' if lights else 't'}"
-    return jit(trace_stream)
+    return jit(with_globals(trace_stream, shade=SHADERS[(materials, lights)]))
 
 
 KERNELS = {(m, o): stream_kernel(m, o) for m in (False, True) for o in (False, True)}
