@@ -15,7 +15,9 @@ The renderer has no packet kernel (packets exist for ``closest_hits`` only: ``be
 
 import argparse
 import statistics
+import tempfile
 import time
+from pathlib import Path
 
 from common import (
     REPO_ROOT,
@@ -44,6 +46,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--scenes", nargs="*", help="names of scenes/ folders (default: every sample scene)"
     )
     parser.add_argument(
+        "--meshes",
+        type=int,
+        default=8,
+        metavar="SUBDIVISIONS",
+        help="also the Cornell box with bench/raycast.py's smooth and bumpy icospheres of this "
+        "many subdivisions (8: 1.31M triangles) in place of its boxes; 0 for none",
+    )
+    parser.add_argument(
         "--kernels",
         nargs="+",
         choices=("single", "stream"),
@@ -56,6 +66,39 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def mesh_scenes(subdivisions: int, folder: Path) -> dict[str, Path]:
+    """Scene files of the Cornell box with ``raycast.icospheres``' meshes (radius 0.45, on the
+    floor) instead of its two boxes, written under ``folder``: name -> scene file."""
+    import json
+    import shutil
+
+    import numpy as np
+    import trimesh
+    from raycast import icospheres
+
+    cornell = REPO_ROOT / "scenes" / "cornell-box"
+    for obj in cornell.glob("*.obj"):
+        shutil.copy(obj, folder / obj.name)
+    base = json.loads((cornell / "scene.json").read_text())
+    kept = [o for o in base["objects"] if o["name"] not in ("small-box", "large-box")]
+    scenes = {}
+    for mesh in icospheres(subdivisions, 0.02, 0):
+        n = mesh.tri_verts.shape[0]
+        faces = np.arange(3 * n).reshape(n, 3)
+        shape = trimesh.Trimesh(mesh.tri_verts.reshape(-1, 3), faces, process=True)
+        shape.export(folder / f"{mesh.name}.ply")
+        sphere = {
+            "name": mesh.name,
+            "shape": f"{mesh.name}.ply",
+            "material": "white",
+            "transform": {"translate": [0.0, -0.55, 0.0], "scale": 0.45},
+        }
+        scene = folder / f"cornell-{mesh.name}-{n}.json"
+        scene.write_text(json.dumps({**base, "objects": [*kept, sphere]}))
+        scenes[f"cornell-{mesh.name}-sphere"] = scene
+    return scenes
+
+
 def measure(args: argparse.Namespace) -> dict[str, dict]:
     from cli.commands.samples import sample_scene_files
     from tracer.compiled.scene import compile_scene
@@ -65,6 +108,8 @@ def measure(args: argparse.Namespace) -> dict[str, dict]:
     from tracer.scene.loader import load_scene
 
     paths = {path.parent.name: path for path in sample_scene_files(REPO_ROOT / "scenes")}
+    if args.meshes > 0:
+        paths.update(mesh_scenes(args.meshes, Path(tempfile.mkdtemp(prefix="renderer-mrays-"))))
     unknown = sorted(set(args.scenes or ()) - set(paths))
     if unknown:
         raise SystemExit(f"unknown scene(s) {', '.join(unknown)}; known: {', '.join(paths)}")
