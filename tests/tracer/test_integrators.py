@@ -15,6 +15,7 @@ from tests.stats import pass_statistics, welch_pixel_test
 from tracer.compiled.scene import compile_scene
 from tracer.integrators import path as integrator
 from tracer.integrators import surface as surface_integrators
+from tracer.integrators import vertex
 from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.integrators.flags import (
     LIGHT_SAMPLES,
@@ -273,4 +274,5 @@ def test_cost_heat_map(cornell):
 
 
 def test_lens_dimension_is_shared():
-    assert surface_integrators.LENS_DIM == integrator.LENS_DIM
+    """The surface kernels place the lens sample where the path vertex code reserves it."""
+    assert surface_integrators.LENS_DIM == vertex.LENS_DIM == vertex.DIMS_PER_VERTEX

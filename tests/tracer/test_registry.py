@@ -16,9 +16,16 @@ def test_registry_names_are_the_formats():
 
 
 def test_every_integrator_has_a_kernel_for_every_build():
+    """Every integrator has the single-ray kernel; the path integrators also the stream kernel,
+    a distinct build for each plan."""
     for integrator in registry.REGISTRY.values():
+        assert "single" in integrator.kernels
         for flags in (0, -1):
-            assert callable(integrator.kernel(flags))
+            built = {name: kernel(flags) for name, kernel in integrator.kernels.items()}
+            assert all(callable(k) for k in built.values())
+            assert len({id(k) for k in built.values()}) == len(built)
+    assert set(registry.REGISTRY["path"].kernels) == {"single", "stream"}
+    assert set(registry.REGISTRY["ao"].kernels) == {"single"}
 
 
 def test_the_format_and_the_cli_parser_import_no_kernel():
