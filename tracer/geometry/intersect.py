@@ -52,6 +52,18 @@ OFFSET_ROUNDING_MARGIN = 8.0 * MACHINE_EPSILON
 
 
 @jit
+def slab_setup(d):
+    """The box test's per-ray constants: ``(ix, iy, iz, nx, ny, nz)`` of :func:`ray_setup`."""
+    ix = 1.0 / d[0]
+    iy = 1.0 / d[1]
+    iz = 1.0 / d[2]
+    nx = 3 if ix < 0.0 else 0
+    ny = 3 if iy < 0.0 else 0
+    nz = 3 if iz < 0.0 else 0
+    return ix, iy, iz, nx, ny, nz
+
+
+@jit
 def ray_setup(o, d):
     """Per-ray constants: reciprocal direction and the watertight test's axis permutation and shear.
 
@@ -61,12 +73,7 @@ def ray_setup(o, d):
     ``d[kz] < 0`` to keep the winding; ``ok*`` are the origin's coordinates in that order.
     """
     dx, dy, dz = d
-    ix = 1.0 / dx
-    iy = 1.0 / dy
-    iz = 1.0 / dz
-    nx = 3 if ix < 0.0 else 0
-    ny = 3 if iy < 0.0 else 0
-    nz = 3 if iz < 0.0 else 0
+    ix, iy, iz, nx, ny, nz = slab_setup(d)
     ax = abs(dx)
     ay = abs(dy)
     az = abs(dz)

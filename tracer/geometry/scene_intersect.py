@@ -23,12 +23,14 @@ from tracer.geometry.intersect import (
     geometric_normal,
     hit_point,
     push_far,
-    ray_setup,
+    slab_setup,
     visit,
 )
 from tracer.geometry.transforms import apply_normal, apply_point, apply_vector
 from tracer.kernel.jit import jit_inline
 
+NO_SLAB = (0.0, 0.0, 0.0, 0, 0, 0)
+"""Box-test constants of a scene without a top level (never read)."""
 GUARD = 1.0 + 2.0**-20
 """Slack on magnitude bounds, so a bound taken before a tiny offset still covers the result."""
 
@@ -59,7 +61,6 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
     key (``intersect.blas_closest`` explains keys: they make the hit independent of the order
     of the visits). A scene of one instance skips the top level.
     """
-    ix, iy, iz, nx, ny, nz, _, _, _, _, _, _, _, _, _ = ray_setup(o, d)
     t_key = t_max
     t_hit = t_max
     h_inst = NO_INSTANCE
@@ -75,9 +76,12 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
     entry = 0  # the top-level root
     entry_key = 0.0
     leaf_key = 0.0
+    ix, iy, iz, nx, ny, nz = NO_SLAB
     if s.tlas_inst.shape[0] == 1:
         q_end = 1
         entry = NO_ENTRY
+    else:  # the top level's box tests need the world ray's constants
+        ix, iy, iz, nx, ny, nz = slab_setup(d)
     while True:
         if q < q_end:
             k = s.tlas_inst[q]
@@ -141,15 +145,17 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
 @jit_inline
 def scene_occluded(s, o, d, t_max, stack_node):
     """Whether anything lies on the ray ``o + t d``, ``t`` in (0, t_max): (hit, cost)."""
-    ix, iy, iz, nx, ny, nz, _, _, _, _, _, _, _, _, _ = ray_setup(o, d)
     cost = 0
     sp = 0
     q = 0
     q_end = 0
     entry = 0  # the top-level root
+    ix, iy, iz, nx, ny, nz = NO_SLAB
     if s.tlas_inst.shape[0] == 1:
         q_end = 1
         entry = NO_ENTRY
+    else:  # the top level's box tests need the world ray's constants
+        ix, iy, iz, nx, ny, nz = slab_setup(d)
     while True:
         if q < q_end:
             k = s.tlas_inst[q]
