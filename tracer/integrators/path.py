@@ -26,13 +26,11 @@ import numpy as np
 from tracer.compiled.arrays import borrow_scene
 from tracer.geometry.scene_intersect import scene_closest, scene_occluded
 from tracer.integrators import flags
-from tracer.integrators.vertex import PATH, SHADERS, WHITTED, camera_path
+from tracer.integrators.vertex import SHADERS, camera_path
 from tracer.kernel.borrow import borrowed
 from tracer.kernel.jit import jit, with_globals
 from tracer.maths.rng import pixel_key, sample_key
 from tracer.shading.camera import camera_sample_ray
-
-__all__ = ["KERNELS", "PATH", "PIXEL_BLOCK", "WHITTED", "build_for", "kernel_for"]
 
 PIXEL_BLOCK = 32
 """Consecutive pixels a thread renders before skipping to its next block."""
@@ -81,7 +79,7 @@ def path_kernel(materials: bool, lights: bool):
         (rows, W, 3) gets the mean of samples [sample_start, sample_start + spp) of each pixel,
         ``out_cost`` int64 (rows, W) the work spent on it, ``out_rays`` int64 (rows, W) the rays
         traced for it (one per traversal: camera, continuation and shadow rays). ``mode`` is
-        ``PATH`` or ``WHITTED``; ``plan`` the effect flags (``tracer.integrators.flags``).
+        ``vertex.PATH`` or ``vertex.WHITTED``; ``plan`` the effect flags (``integrators.flags``).
         Threads call this with the same stride and different ``first``: interleaved blocks of
         ``PIXEL_BLOCK`` pixels balance lines of very different cost, and keep threads off each
         other's cache lines. ``stack_node`` (int32) and ``stack_t`` (float64) are this thread's

@@ -16,7 +16,7 @@ import numpy as np
 from tracer import config
 from tracer.compiled.arrays import SceneArrays
 from tracer.compiled.scene import CompiledScene
-from tracer.integrators import path, stream, surface
+from tracer.integrators import path, stream, surface, vertex
 from tracer.integrators.flags import INDIRECT, TEXTURES, light_kinds
 from tracer.integrators.pixels import PixelRun
 from tracer.maths import portable
@@ -62,13 +62,13 @@ def scene_diagonal(scene: CompiledScene) -> float:
 
 
 def _path(name: str, mode: int, indirect: bool, heat_map: bool = False) -> Integrator:
-    """A path-kernel integrator in ``mode`` (``path.PATH`` or ``path.WHITTED``); a ``PATH``
+    """A path-kernel integrator in ``mode`` (``vertex.PATH`` or ``vertex.WHITTED``); a ``PATH``
     mode without ``indirect`` (or without the plan's ``INDIRECT``) stops at two vertices."""
 
     def arguments(scene: CompiledScene, run: PixelRun) -> tuple:
         settings = run.settings
         max_depth = settings.max_depth
-        if mode == path.PATH and not (indirect and run.flags & INDIRECT):
+        if mode == vertex.PATH and not (indirect and run.flags & INDIRECT):
             max_depth = min(max_depth, 2)
         return (
             arrays_for_plan(scene, run.flags),
@@ -123,14 +123,14 @@ def _surface(name: str, output: int) -> Integrator:
 REGISTRY: dict[str, Integrator] = {
     i.name: i
     for i in (
-        _path("path", path.PATH, indirect=True),
-        _path("direct", path.PATH, indirect=False),
-        _path("whitted", path.WHITTED, indirect=False),
+        _path("path", vertex.PATH, indirect=True),
+        _path("direct", vertex.PATH, indirect=False),
+        _path("whitted", vertex.WHITTED, indirect=False),
         _surface("ao", surface.AO),
         _surface("albedo", surface.ALBEDO),
         _surface("normal", surface.NORMAL),
         _surface("depth", surface.DEPTH),
-        _path("cost", path.PATH, indirect=True, heat_map=True),
+        _path("cost", vertex.PATH, indirect=True, heat_map=True),
     )
 }
 """Every integrator, by name, in the scene format's order."""
