@@ -18,6 +18,7 @@ from api.store import TERMINAL, Store
 from tracer.errors import SceneError
 from tracer.io.files import write_atomic
 from tracer.io.images import write_image
+from tracer.io.layers import write_layers
 from tracer.scene.codec import decode_state, encode_state
 from tracer.scene.model import SceneState
 
@@ -182,10 +183,16 @@ class JobQueue:
         run.close()
         self.run = None
 
-    def _keep_frame(self, run: JobRun, spec, image, info: dict) -> None:
-        """A finished frame: on disk, in the store, then announced."""
-        path = job_dir(self.settings, run.id) / f"frame_{spec.number:06d}.npy"
-        write_image(path, image)
+    def _keep_frame(self, run: JobRun, spec, layers: dict, info: dict) -> None:
+        """A finished frame: on disk (its beauty as ``.npy``, or every layer as a ``.npz``
+        bundle), in the store, then announced."""
+        name = f"frame_{spec.number:06d}"
+        if len(layers) == 1:
+            path = job_dir(self.settings, run.id) / f"{name}.npy"
+            write_image(path, layers["beauty"])
+        else:
+            path = job_dir(self.settings, run.id) / f"{name}.npz"
+            write_layers(path, layers, {k: v for k, v in info.items() if k == "denoise"})
         position = next(i for i, f in enumerate(run.frames) if f.number == spec.number)
         self.store.add_frame(
             run.id,

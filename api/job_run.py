@@ -17,6 +17,7 @@ from cluster.progressive import ProgressiveFrame, part_request
 from cluster.scene_graph import SceneGraph
 from cluster.turns import TurnedFrame, TurnSizer, spot_checks_in_turns
 from tracer.accuracy.spot_check import SpotCheck
+from tracer.post.frame_layers import frame_layers
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 from tracer.scene.model import SceneState
@@ -67,6 +68,8 @@ def job_state(state: SceneState, request: dict) -> SceneState:
         seed=request.get("seed"),
         max_depth=request.get("max_depth"),
         kernel=request.get("kernel"),
+        aovs=request.get("aovs"),
+        denoise=request.get("denoise"),
     )
 
 
@@ -159,8 +162,10 @@ class JobRun:
         part = self.part
         return self.samples_finished + (0 if part is None else part.samples_done)
 
-    def step(self, coordinator) -> tuple[FrameSpec, np.ndarray, dict] | None:
-        """Render one turn; returns (frame, image, info) when that turn finished a frame."""
+    def step(self, coordinator) -> tuple[FrameSpec, dict[str, np.ndarray], dict] | None:
+        """Render one turn; returns (frame, layers, info) when that turn finished a frame:
+        its layers by name (``tracer.post.frame_layers``), info its spp, error estimate,
+        seconds and the denoiser's report."""
         if self._work is None:
             self.current = self.todo[0]
             self.current_started = self.sizer.seconds_total
@@ -182,13 +187,16 @@ class JobRun:
             self._work = None
 
     def _frame(self, coordinator, spec: FrameSpec) -> Generator:
-        """Frame ``spec``'s turns, a yield before each; returns (frame, image, info)."""
+        """Frame ``spec``'s turns, a yield before each; returns (frame, layers, info)."""
         state = self.graph.state
         request = FrameRequest(spec.number, spec.camera or state.camera, state.render)
         yield
         if self.goal is None:
             part = yield from self._part(coordinator, request)
-            return self._complete(spec, part.image, request.spp, None, part.seconds)
+            layers, made = yield from off_thread(
+                frame_layers, part.image, part.aov, request.settings
+            )
+            return self._complete(spec, layers, made, request.spp, None, part.seconds)
         camera = request.camera
         sizer = self.sizer
         p = self.progressive = ProgressiveFrame(
@@ -202,12 +210,12 @@ class JobRun:
                 yield from off_thread(p.add_spot_checks, pixels, parts, seconds, work)
             else:
                 part = yield from self._part(coordinator, part_request(request, step))
-                yield from off_thread(p.add_part, part.image, part.seconds, part.work)
+                yield from off_thread(p.add_part, part.image, part.seconds, part.work, part.aov)
             step = p.next_part()
             if step is not None:
                 yield
-        image = yield from off_thread(lambda: p.image)
-        return self._complete(spec, image, p.spp, p.error, p.elapsed)
+        layers, made = yield from off_thread(lambda: frame_layers(p.image, p.aov, request.settings))
+        return self._complete(spec, layers, made, p.spp, p.error, p.elapsed)
 
     def _part(self, coordinator, request: FrameRequest) -> Generator:
         """Render ``request`` run by run; returns its :class:`TurnedFrame`."""
@@ -220,12 +228,12 @@ class JobRun:
     def _ran(self, frame) -> None:
         self.last_frame = frame
 
-    def _complete(self, spec, image, spp, error, seconds):
+    def _complete(self, spec, layers, made, spp, error, seconds):
         self.todo.pop(0)
         self.current = None
         self.progressive = None
         self.done += 1
-        return spec, image, {"spp": spp, "error_estimate": error, "seconds": seconds}
+        return spec, layers, {"spp": spp, "error_estimate": error, "seconds": seconds, **made}
 
     def progress(self) -> dict:
         """Frames, lines, samples and an ETA, from what the thread has recorded (any thread)."""

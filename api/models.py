@@ -4,7 +4,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
-from tracer.integrators.names import KERNELS
+from tracer.integrators.names import DENOISE, KERNELS
 from tracer.scene import format as fmt
 
 MAX_CAMERA_PATH = 10_000
@@ -193,6 +193,18 @@ class JobCreate(Strict):
         default=None,
         description="how paths are traced (the scene's render.kernel by default); the same "
         "image either way",
+    )
+    aovs: bool | None = Field(
+        default=None,
+        description="also render the AOV layers albedo, normal, depth, position and alpha "
+        "(the scene's render.aovs by default); frames then offer ?layer= and every layer as "
+        "exr or npz",
+    )
+    denoise: Literal[DENOISE] | None = Field(
+        default=None,
+        description="denoise each finished frame with Open Image Denoise at this quality "
+        "(the scene's render.denoise by default); the frame's default layer is then the "
+        "denoised one, the beauty stays as ?layer=beauty",
     )
     frames: list[Annotated[int, Field(ge=0, lt=MAX_JOB_FRAMES)]] | None = Field(
         default=None,

@@ -99,12 +99,12 @@ def specialised_kernel():
     def trace_pixels_specialised(scene, camera, width, height, p0, p1, sample_start, spp,
                                  max_depth, rr_depth, seed, frame, shadow_t_max, mode, plan,
                                  first, stride, stack_node, stack_t, out_rgb, out_cost,
-                                 out_rays):  # fmt: skip
+                                 out_rays, out_aov):  # fmt: skip
         literally(mode)
         literally(plan)
         full(scene, camera, width, height, p0, p1, sample_start, spp, max_depth, rr_depth, seed,
              frame, shadow_t_max, mode, plan, first, stride, stack_node, stack_t, out_rgb,
-             out_cost, out_rays)  # fmt: skip
+             out_cost, out_rays, out_aov)  # fmt: skip
 
     return jit(trace_pixels_specialised)
 
@@ -125,7 +125,7 @@ def render_specialised(scene, camera, settings, plan, threads):
     for y0 in range(0, height, chunk):
         y1 = min(height, y0 + chunk)
         run = pixel_run(scene, camera, settings, y0 * width, y1 * width, 0, 0, plan.flags)
-        rgb, pixel_cost, _ = trace_run(kernel, integrator.arguments(scene, run), run, threads)
+        rgb, pixel_cost, _, _ = trace_run(kernel, integrator.arguments(scene, run), run, threads)
         image[y0:y1] = rgb.reshape(y1 - y0, width, 3)
         cost[y0:y1] = pixel_cost.reshape(y1 - y0, width).sum(axis=1)
     return image, cost

@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 
 from cli.errors import CommandFailed
-from cli.output import note_compiling, progress_bar, stderr, write_output
+from cli.output import describe_denoise, note_compiling, progress_bar, stderr, write_output
 from cluster.balancing import DEFAULT_BALANCER
 from cluster.jobs import embedded_ray_cpus
 from cluster.progressive import Goal, ProgressiveFrame, render_progressive
@@ -123,12 +123,20 @@ def render_still(coordinator, output: Path, args: argparse.Namespace, goal: Goal
         progress, done = render_progressive_frame(
             coordinator, goal, 0, Path(args.scene).name, args.quiet
         )
-        write_output(output, progress.image, progressive_frame_metadata(done, args, progress))
+        info = write_output(
+            output,
+            progress.image,
+            progressive_frame_metadata(done, args, progress),
+            progress.aov,
+            done.settings,
+            args.layer,
+        )
         if not args.quiet:
             camera = done.camera
             stderr.print(
                 f"wrote {output}: {camera.width}x{camera.height}, "
                 f"{describe_progressive(progress)}, {progress.elapsed:.2f} s"
+                f"{describe_denoise(info)}"
             )
         return
     with progress_bar(args.quiet, "{task.completed}/{task.total} frames") as progress:
@@ -136,7 +144,9 @@ def render_still(coordinator, output: Path, args: argparse.Namespace, goal: Goal
         done = coordinator.render_frame(FrameRequest(0))
         progress.advance(task)
     tracers = len(done.split)
-    write_output(output, done.rgb, frame_metadata(done, args))
+    info = write_output(
+        output, done.rgb, frame_metadata(done, args), done.aov, done.settings, args.layer
+    )
     if not args.quiet:
         camera, spp = done.camera, done.settings.spp
         rate = camera.width * camera.height * spp / max(done.wall_seconds, 1e-9) / 1e6
@@ -144,7 +154,7 @@ def render_still(coordinator, output: Path, args: argparse.Namespace, goal: Goal
             f"wrote {output}: {camera.width}x{camera.height}, {spp} spp, "
             f"{done.wall_seconds:.2f} s, {rate:.2f} M samples/s, "
             f"{done.rays.sum() / max(done.wall_seconds, 1e-9) / 1e6:.2f} M rays/s, {tracers} tracer"
-            f"{'s' if tracers != 1 else ''}, idle {done.idle_percent:.1f} %"
+            f"{'s' if tracers != 1 else ''}, idle {done.idle_percent:.1f} %{describe_denoise(info)}"
         )
 
 
@@ -156,7 +166,8 @@ def render_frames_progressive(coordinator, frames, outputs, args, goal: Goal) ->
             coordinator.graph.frame_commit(number)
             label = f"{Path(args.scene).name} frame {number}"
             progress, done = render_progressive_frame(coordinator, goal, number, label, args.quiet)
-            write_output(path, progress.image, progressive_frame_metadata(done, args, progress))
+            metadata = progressive_frame_metadata(done, args, progress)
+            write_output(path, progress.image, metadata, progress.aov, done.settings, args.layer)
             written += 1
             if not args.quiet:
                 stderr.print(
@@ -177,7 +188,8 @@ def render_frames(coordinator, frames: list[int], outputs: list[Path], args) -> 
             task = progress.add_task(Path(args.scene).name, total=len(frames))
             for done, path in zip(coordinator.render_animation(frames), outputs, strict=True):
                 tracers = len(done.split)
-                write_output(path, done.rgb, frame_metadata(done, args))
+                metadata = frame_metadata(done, args)
+                write_output(path, done.rgb, metadata, done.aov, done.settings, args.layer)
                 written += 1
                 idle.append(done.idle_percent)
                 progress.advance(task)

@@ -3,8 +3,11 @@
 import time
 from pathlib import Path
 
-from cli.output import note_compiling, progress_bar, stderr, write_output
+import numpy as np
+
+from cli.output import describe_denoise, note_compiling, progress_bar, stderr, write_output
 from tracer.compiled.scene import CompiledScene
+from tracer.integrators.aov import CHANNELS
 from tracer.integrators.effects import effect_plan
 from tracer.integrators.kernel_choice import plan_report
 from tracer.io.metadata import image_metadata
@@ -30,11 +33,14 @@ def render_to_file(
     threads: int | None,
     quiet: bool,
     label: str,
+    layer: str | None = None,
 ) -> float:
-    """Render with a progress bar and write every output; returns seconds spent rendering."""
+    """Render with a progress bar and write every output (``layer`` as ``write_output``);
+    returns seconds spent rendering."""
     warm_up(scene, settings, quiet)
     samples_total = camera.width * camera.height * settings.spp
     start = time.perf_counter()
+    aov = np.empty((camera.height, camera.width, CHANNELS), np.float32)
     with progress_bar(quiet, "{task.completed}/{task.total} lines") as progress:
         task = progress.add_task(label, total=camera.height)
         rays = []
@@ -42,18 +48,22 @@ def render_to_file(
         def on_lines(part) -> None:
             progress.advance(task, part.y1 - part.y0)
             rays.append(int(part.rays.sum()))
+            if part.aov is not None:
+                aov[part.y0 : part.y1] = part.aov
 
         image, _ = render_image(scene, camera, settings, threads=threads, on_lines=on_lines)
     seconds = time.perf_counter() - start
     plan = plan_report(effect_plan(scene, settings), settings)
     metadata = image_metadata(camera, settings, plan, seconds, sum(rays), "in-process")
+    aov = aov if settings.renders_aovs else None
     for path in outputs:
-        write_output(path, image, metadata)
+        info = write_output(path, image, metadata, aov, settings, layer)
     if not quiet:
         rate = samples_total / seconds / 1e6
         names = ", ".join(str(p) for p in outputs)
         stderr.print(
             f"wrote {names}: {camera.width}x{camera.height}, {settings.spp} spp, "
             f"{seconds:.2f} s, {rate:.2f} M samples/s, {sum(rays) / seconds / 1e6:.2f} M rays/s"
+            f"{describe_denoise(info)}"
         )
     return seconds

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 from cli.errors import UsageError
 from tracer.errors import TilerenderError
-from tracer.integrators.names import INTEGRATORS, KERNELS
+from tracer.integrators.names import DENOISE, INTEGRATORS, KERNELS, OUTPUT_LAYERS
 
 EXIT_FAILED = 1
 EXIT_USAGE = 2
@@ -236,6 +236,34 @@ def add_kernel_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_layer_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--aov",
+        action="store_true",
+        default=None,
+        help="also render the AOV layers albedo, normal, depth, position and alpha from the "
+        "same paths (path, direct, whitted, cost); a .exr then holds every layer as named "
+        "channels, a .npz one array per layer (docs/outputs.md)",
+    )
+    parser.add_argument(
+        "--denoise",
+        nargs="?",
+        const="high",
+        choices=[q for q in DENOISE if q != "off"],
+        metavar="QUALITY",
+        help="denoise the finished frame with Open Image Denoise: fast, balanced or high "
+        "(the default when QUALITY is left out), guided by the albedo and normal AOVs; the "
+        "image shows the denoised layer, a .exr or .npz keeps the beauty beside it "
+        "(docs/denoising.md)",
+    )
+    parser.add_argument(
+        "--layer",
+        choices=OUTPUT_LAYERS,
+        help="the layer a .png, .npy or single-layer .exr shows (default: denoised with "
+        "--denoise, else beauty)",
+    )
+
+
 def add_render_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spp", type=positive_int, help="samples per pixel")
     parser.add_argument("--width", type=positive_int, help="image width in pixels")
@@ -252,6 +280,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         help="path vertices after the camera: 1 = emitters only, 2 = direct light",
     )
     add_kernel_option(parser)
+    add_layer_options(parser)
     parser.add_argument(
         "--threads",
         type=positive_int,

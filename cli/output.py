@@ -7,9 +7,13 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from cli.errors import UsageError
+from cli.errors import CommandFailed, UsageError
 from tracer.io.images import check_output_path, write_image
+from tracer.io.layers import check_layers_path, layer_as_rgb, write_layers
 from tracer.kernel import numba_cache
+from tracer.post.denoise import DenoiserUnavailable
+from tracer.post.frame_layers import default_layer, frame_layers, rendered_layers
+from tracer.scene import format as fmt
 
 stderr = Console(stderr=True, highlight=False, soft_wrap=True)
 
@@ -42,9 +46,13 @@ def note_compiling(quiet: bool) -> bool:
 
 
 def output_path(text: str) -> Path:
-    """``-o``'s image path: a format we write, in a directory that exists."""
+    """``-o``'s image path: a format we write (an image, or a bundle of layers), in a directory
+    that exists."""
     try:
-        output = check_output_path(text)
+        if Path(text).suffix.lower() == ".npz":
+            output = check_layers_path(text)
+        else:
+            output = check_output_path(text)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if not output.parent.is_dir():
@@ -52,9 +60,48 @@ def output_path(text: str) -> Path:
     return output
 
 
-def write_output(path: Path, rgb: np.ndarray, metadata: dict) -> None:
-    """Write an image the command renders; a file that cannot be written is a UsageError."""
+def check_layer_choice(layer: str | None, settings: fmt.RenderSettings) -> None:
+    """A UsageError, before anything renders, for a ``--layer`` the render will not have."""
+    if layer is not None and layer not in (present := rendered_layers(settings)):
+        raise UsageError(
+            f"--layer {layer}: this render has the layers {', '.join(present)} "
+            "(--aov adds the AOVs, --denoise the denoised layer)"
+        )
+
+
+def write_output(
+    path: Path,
+    rgb: np.ndarray,
+    metadata: dict,
+    aov: np.ndarray | None = None,
+    settings: fmt.RenderSettings | None = None,
+    layer: str | None = None,
+) -> dict:
+    """Write a frame the command renders: its layers (``tracer.post.frame_layers``: the
+    denoised one made here when ``settings`` ask for it) to a ``.npz``, or to a ``.exr`` when
+    there are several, else ``layer`` (default ``default_layer``) as an image. Returns what
+    making the layers took (the denoiser's report, in the metadata too). A file that cannot be
+    written is a UsageError; a missing denoiser a CommandFailed."""
+    settings = settings or fmt.RenderSettings()
     try:
-        write_image(path, rgb, metadata)
+        layers, info = frame_layers(rgb, aov, settings)
+    except DenoiserUnavailable as exc:
+        raise CommandFailed(str(exc)) from None
+    metadata = {**metadata, **info}
+    try:
+        if path.suffix.lower() == ".npz" or (path.suffix.lower() == ".exr" and len(layers) > 1):
+            write_layers(path, layers, metadata)
+        else:
+            write_image(path, layer_as_rgb(layers, layer or default_layer(settings)), metadata)
     except OSError as exc:
         raise UsageError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return info
+
+
+def describe_denoise(info: dict) -> str:
+    """What the denoiser did, for the command's summary line ('' if it did not run)."""
+    done = info.get("denoise")
+    if not done:
+        return ""
+    guides = "+".join(done["guides"]) or "no"
+    return f", denoised ({done['quality']}, {guides} guides) in {done['seconds']:.2f} s"

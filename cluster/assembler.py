@@ -12,19 +12,23 @@ the same values anyway.
 
 import numpy as np
 
+from tracer.integrators.aov import CHANNELS
 from worker.work_units import WorkUnits
 
 
 class Assembler:
     """The image and per-unit cost of one frame, filled range by range."""
 
-    def __init__(self, frame: int, version: int, units: WorkUnits):
+    def __init__(self, frame: int, version: int, units: WorkUnits, aovs: bool = False):
         self.frame = frame
         self.version = version
         self.units = units
         self.width, self.height = units.width, units.height
         self.rgb = np.zeros((self.height, self.width, 3), np.float32)
         self._pixels = self.rgb.reshape(-1, 3)  # a view: row-major pixel runs
+        self.aov = np.zeros((self.height, self.width, CHANNELS), np.float32) if aovs else None
+        """float32 (H, W, ``aov.CHANNELS``) when the frame renders AOVs
+        (``tracer.integrators.aov``): every result must then carry them."""
         self.cost = np.zeros(units.count, np.int64)
         """Work per unit."""
         self.rays = np.zeros(units.count, np.int64)
@@ -44,8 +48,9 @@ class Assembler:
 
     def accept(self, result) -> int:
         """Write a tracer's result (``frame``, ``version``, ``u0``, ``u1``, ``spans``, ``rgb``
-        (pixels, 3), ``cost`` per unit and optionally ``rays`` per unit); returns the number of
-        units it completed, or -1 if it was refused."""
+        (pixels, 3), ``cost`` per unit, optionally ``rays`` per unit, and ``aov`` (pixels,
+        ``aov.CHANNELS``) when the frame renders AOVs); returns the number of units it
+        completed, or -1 if it was refused."""
         u0, u1 = result.u0, result.u1
         rgb = np.asarray(result.rgb)
         cost = np.asarray(result.cost)
@@ -58,11 +63,17 @@ class Assembler:
         if rgb.shape != (p1 - p0, 3) or cost.shape != (u1 - u0,):
             self.rejected += 1
             return -1
+        aov = getattr(result, "aov", None)
+        if self.aov is not None and np.shape(aov) != (p1 - p0, CHANNELS):
+            self.rejected += 1
+            return -1
         new = ~self.done[u0:u1]
         count = int(new.sum())
         if count:
             pixels = np.repeat(new, self.units.sizes(u0, u1))
             self._pixels[p0:p1][pixels] = rgb[pixels]
+            if self.aov is not None:
+                self.aov.reshape(-1, CHANNELS)[p0:p1][pixels] = np.asarray(aov)[pixels]
             self.cost[u0:u1][new] = cost[new]
             rays = getattr(result, "rays", None)
             if rays is not None and np.shape(rays) == cost.shape:

@@ -70,6 +70,9 @@ class Frame:
     """The effect plan the frame was rendered with (every tracer derives the same one)."""
     rays: np.ndarray | None = None
     """int64 (H,): rays traced per line (camera, continuation, shadow and occlusion)."""
+    aov: np.ndarray | None = None
+    """float32 (H, W, ``tracer.integrators.aov.CHANNELS``): the view's AOVs, when the settings
+    render them (``tracer.integrators.aov``)."""
 
 
 def gap_idle_percent(arrivals: dict[str, list[tuple[float, float]]]) -> float:

@@ -67,7 +67,7 @@ class FrameRunner:
             graph=graph,
             state=state,
             units=units,
-            assembler=Assembler(request.frame, state.version, units),
+            assembler=Assembler(request.frame, state.version, units, request.settings.renders_aovs),
             submitted=time.perf_counter(),
         )
         ids = [s.id for s in slots]
@@ -424,6 +424,7 @@ class FrameRunner:
             units=job.units,
             unit_cost=job.assembler.cost,
             rays=job.assembler.line_rays(),
+            aov=job.assembler.aov,
             camera=job.request.camera,
             settings=job.request.settings,
             split=list(job.split),

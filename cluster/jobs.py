@@ -23,6 +23,8 @@ def with_overrides(
     max_depth: int | None = None,
     integrator: str | None = None,
     kernel: str | None = None,
+    aovs: bool | None = None,
+    denoise: str | None = None,
 ) -> SceneState:
     """``state`` with its camera's size and its render settings overridden (None keeps the
     scene's value); SceneError names a value a scene file could not hold either."""
@@ -35,6 +37,8 @@ def with_overrides(
             max_depth=max_depth,
             integrator=integrator,
             kernel=kernel,
+            aovs=aovs,
+            denoise=denoise,
         )
     except pydantic.ValidationError as exc:
         raise SceneError(format_validation_error(exc)) from None

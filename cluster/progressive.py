@@ -133,6 +133,9 @@ class ProgressiveFrame:
 
     def __post_init__(self) -> None:
         self.sums = np.zeros((PARTS, self.height, self.width, 3), np.float64)
+        self.aov_sums: np.ndarray | None = None
+        """Sample-weighted sums of the parts' AOVs (H, W, ``aov.CHANNELS``), when they carry
+        them."""
         self._ledger = SpotCheckLedger(self.width * self.height)
 
     @property
@@ -153,6 +156,14 @@ class ProgressiveFrame:
     def image(self) -> np.ndarray:
         """The mean of every sample taken, float32 (H, W, 3)."""
         return (self.sums.sum(axis=0) / max(1, self.spp)).astype(np.float32)
+
+    @property
+    def aov(self) -> np.ndarray | None:
+        """The AOVs' mean over every sample taken, float32 (H, W, ``aov.CHANNELS``), or None
+        when the parts carry none."""
+        if self.aov_sums is None:
+            return None
+        return (self.aov_sums / max(1, self.spp)).astype(np.float32)
 
     def summary(self) -> dict:
         """The goal, the estimate and why the frame stopped (for an image's metadata)."""
@@ -180,16 +191,29 @@ class ProgressiveFrame:
         self._pending = Part(self.spp, spp, len(self._wave))
         return self._pending
 
-    def add_part(self, rgb: np.ndarray, seconds: float, work: float | None = None) -> None:
+    def add_part(
+        self,
+        rgb: np.ndarray,
+        seconds: float,
+        work: float | None = None,
+        aov: np.ndarray | None = None,
+    ) -> None:
         """Add the rendered part (float (H, W, 3), the mean of its samples) that
         :meth:`next_part` named; ``seconds`` is what rendering it took, ``work`` the kernels'
-        work count (the spot checks' budget; without it they count samples)."""
+        work count (the spot checks' budget; without it they count samples), ``aov`` the
+        part's AOVs (H, W, ``aov.CHANNELS``) when it carries them (every part or none)."""
         part = self._pending
         if not isinstance(part, Part):
             raise RuntimeError("add_part without a pending part (call next_part first)")
         if rgb.shape != self.sums.shape[1:]:
             raise ValueError(f"expected an image of shape {self.sums.shape[1:]}, got {rgb.shape}")
+        if (aov is None) != (self.aov_sums is None) and self.spp > 0:
+            raise ValueError("every part of a frame carries AOVs, or none does")
         self._pending = None
+        if aov is not None:
+            if self.aov_sums is None:
+                self.aov_sums = np.zeros(np.shape(aov), np.float64)
+            self.aov_sums += np.asarray(aov, np.float64) * part.spp
         self.work = None if work is None or self.work is None else self.work + float(work)
         self.sums[part.index] += np.asarray(rgb, np.float64) * part.spp
         self._wave.append(part.spp)
@@ -289,7 +313,7 @@ def progressive_step(
         return None
     part = part_request(request, step)
     done = coordinator.render_frame(part, graph)
-    progress.add_part(done.rgb, time.monotonic() - start, float(done.cost.sum()))
+    progress.add_part(done.rgb, time.monotonic() - start, float(done.cost.sum()), done.aov)
     return done
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from cluster.frame import Frame
 from tracer.accuracy.error_estimate import PARTS
 from tracer.accuracy.spot_check import SpotCheck
+from tracer.integrators.aov import CHANNELS
 from tracer.request import FrameRequest
 
 FIRST_TURN_SAMPLES = 1 << 16
@@ -72,6 +73,11 @@ class TurnedFrame:
         self.sizer = sizer
         self.width, self.height = request.camera.width, request.camera.height
         self.pixels = np.zeros((self.width * self.height, 3), np.float32)
+        self.aov_pixels = (
+            np.zeros((self.width * self.height, CHANNELS), np.float32)
+            if request.settings.renders_aovs
+            else None
+        )
         self.pixels_done = 0
         self.work = 0.0
         """The kernels' work count of every run so far."""
@@ -82,6 +88,13 @@ class TurnedFrame:
     def image(self) -> np.ndarray:
         """float32 (H, W, 3)."""
         return self.pixels.reshape(self.height, self.width, 3)
+
+    @property
+    def aov(self) -> np.ndarray | None:
+        """float32 (H, W, ``aov.CHANNELS``) when the settings render AOVs, else None."""
+        if self.aov_pixels is None:
+            return None
+        return self.aov_pixels.reshape(self.height, self.width, CHANNELS)
 
     @property
     def samples_done(self) -> int:
@@ -101,6 +114,8 @@ class TurnedFrame:
             run = replace(self.request, region=None if whole else (r0, r1))
             frame = coordinator.render_frame(run, graph)
             self.pixels[r0:r1] = frame.rgb.reshape(-1, 3)
+            if self.aov_pixels is not None:
+                self.aov_pixels[r0:r1] = frame.aov.reshape(-1, CHANNELS)
             self.work += float(frame.cost.sum())
             self.seconds += frame.wall_seconds
             self.sizer.observe((r1 - r0) * spp, frame.wall_seconds)

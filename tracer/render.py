@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tracer.compiled.scene import CompiledScene
+from tracer.integrators import flags
+from tracer.integrators.aov import world_positions
 from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.integrators.kernel_choice import chosen_kernel
 from tracer.integrators.pixels import pixel_run, trace_run
@@ -33,7 +35,8 @@ SAMPLES_PER_CALL = 1 << 18
 class RenderedLines:
     """Lines [y0, y1): ``rgb`` float32 (y1-y0, W, 3) linear radiance, mean of ``spp`` samples;
     ``cost`` int64 (y1-y0,) work per line (BVH node visits plus triangle tests); ``rays`` int64
-    (y1-y0,) rays traced per line (camera, continuation, shadow and occlusion rays)."""
+    (y1-y0,) rays traced per line (camera, continuation, shadow and occlusion rays); ``aov``
+    float32 (y1-y0, W, ``aov.CHANNELS``) when the settings render AOVs, else None."""
 
     y0: int
     y1: int
@@ -42,13 +45,16 @@ class RenderedLines:
     rays: np.ndarray
     spp: int
     seconds: float
+    aov: np.ndarray | None = None
 
 
 @dataclass
 class RenderedPixels:
     """The pixel run [p0, p1): pixels in row-major order (index ``y * W + x``), n = p1 - p0 of
     them. ``rgb`` float32 (n, 3) as ``RenderedLines.rgb``; ``cost`` int64 (n,) and ``rays``
-    int64 (n,) the work and the rays of each pixel (what ``RenderedLines`` sums per line)."""
+    int64 (n,) the work and the rays of each pixel (what ``RenderedLines`` sums per line);
+    ``aov`` float32 (n, ``aov.CHANNELS``) when the settings render AOVs
+    (``tracer.integrators.aov``, positions in world space), else None."""
 
     p0: int
     p1: int
@@ -57,6 +63,7 @@ class RenderedPixels:
     rays: np.ndarray
     spp: int
     seconds: float
+    aov: np.ndarray | None = None
 
 
 def render_lines(
@@ -93,6 +100,7 @@ def render_lines(
         run.rays.reshape(lines, width).sum(axis=1),
         run.spp,
         run.seconds,
+        None if run.aov is None else run.aov.reshape(lines, width, -1),
     )
 
 
@@ -127,13 +135,17 @@ def render_pixels(
         plan = effect_plan(scene, settings)
     integrator = REGISTRY[settings.integrator]
     start = time.perf_counter()
-    run = pixel_run(scene, camera, settings, p0, p1, frame, sample_start, plan.flags)
+    aovs = settings.renders_aovs
+    run_flags = plan.flags | (flags.AOVS if aovs else 0)
+    run = pixel_run(scene, camera, settings, p0, p1, frame, sample_start, run_flags)
     kernel = chosen_kernel(settings, plan.flags)
-    rgb, cost, rays = trace_run(kernel, integrator.arguments(scene, run), run, threads)
+    rgb, cost, rays, aov = trace_run(kernel, integrator.arguments(scene, run), run, threads, aovs)
+    if aov is not None:
+        world_positions(aov, scene.origin)
     if integrator.heat_map:
         rgb = cost_heatmap(cost, settings.spp)
     seconds = time.perf_counter() - start
-    return RenderedPixels(p0, p1, rgb, cost, rays, settings.spp, seconds)
+    return RenderedPixels(p0, p1, rgb, cost, rays, settings.spp, seconds, aov)
 
 
 def chunk_lines(camera: fmt.Camera, settings: fmt.RenderSettings) -> int:

@@ -80,6 +80,9 @@ class UnitsResult:
     (``tracer.integrators.effects.EffectPlan.to_json``)."""
     rays: np.ndarray | None = None
     """int64 (u1 - u0,): rays traced per unit (camera, continuation, shadow and occlusion)."""
+    aov: np.ndarray | None = None
+    """float32 (pixels, ``tracer.integrators.aov.CHANNELS``): the AOVs of the pixel run, when
+    the settings render them."""
     spans: int = 1
     """Units per line of the frame (:class:`worker.work_units.WorkUnits`)."""
     more: list["UnitsResult"] | None = field(default_factory=list)
@@ -256,10 +259,11 @@ class Tracer:
                     self.threads,
                     plan,
                 )
-                rgb = out.rgb
+                rgb, aov = out.rgb, out.aov
                 cost, rays = units.per_unit(a, b, out.cost), units.per_unit(a, b, out.rays)
             else:  # a tracer of a pooled frame with no range of its own
                 rgb, cost, rays = np.zeros((0, 3), np.float32), np.zeros(0, np.int64), None
+                aov = None
             return UnitsResult(
                 tracer=self.id,
                 frame=frame,
@@ -276,6 +280,7 @@ class Tracer:
                 effects=effects,
                 rays=rays,
                 spans=spans,
+                aov=aov,
             )
 
         result = render_units(u0, u1, applied, apply_seconds)

@@ -18,7 +18,10 @@ from api.scenes import new_id
 from api.store import TERMINAL, QueueFull
 from cluster.progressive import PARTS
 from tracer.errors import SceneError, format_validation_error
+from tracer.integrators.names import OUTPUT_LAYERS
 from tracer.io.images import read_image, write_image
+from tracer.io.layers import layer_as_rgb, read_layers, write_layers
+from tracer.post.denoise import DenoiserUnavailable, require_denoiser
 from tracer.scene.model import SceneState
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], route_class=ThreadedBodyRoute)
@@ -27,6 +30,7 @@ FORMATS = {
     "png": "image/png",
     "exr": "image/x-exr",
     "npy": "application/octet-stream",
+    "npz": "application/octet-stream",
 }
 KEEPALIVE_SECONDS = 15.0
 
@@ -127,6 +131,11 @@ def _plan(ctx: Ctx, body: JobCreate, state: SceneState) -> tuple[dict, SceneStat
         posed = job_state(state, request)
     except SceneError as exc:
         raise ApiError(422, str(exc)) from None
+    if posed.render.denoise != "off":
+        try:
+            require_denoiser()
+        except DenoiserUnavailable as exc:
+            raise ApiError(503, f"this server cannot denoise: {exc}", "unavailable") from None
     if posed.camera.width > s.max_width or posed.camera.height > s.max_height:
         raise ApiError(
             422,
@@ -148,7 +157,7 @@ def _plan(ctx: Ctx, body: JobCreate, state: SceneState) -> tuple[dict, SceneStat
     return request, posed, frames
 
 
-@router.post("", status_code=202, response_model=JobPublic, responses=errors(400, 429))
+@router.post("", status_code=202, response_model=JobPublic, responses=errors(400, 429, 503))
 async def submit_job(body: JobCreate, ctx: Ctx, response: Response) -> JobPublic:
     """Submit a still or an animation render."""
     entry = await to_thread.run_sync(ctx.scenes.get, body.scene_id)
@@ -212,7 +221,9 @@ async def cancel_job(job_id: str, ctx: Ctx) -> JobPublic:
     return job_public(ctx, _job(ctx, job_id), with_frames=True)
 
 
-async def _frame_file(ctx: Ctx, job_id: str, frame: int | None, fmt_name: str) -> FileResponse:
+async def _frame_file(
+    ctx: Ctx, job_id: str, frame: int | None, fmt_name: str, layer: str | None = None
+) -> FileResponse:
     record = _job(ctx, job_id)
     frames = ctx.store.frames(job_id)
     if frame is None:
@@ -229,10 +240,18 @@ async def _frame_file(ctx: Ctx, job_id: str, frame: int | None, fmt_name: str) -
             )
     directory = job_dir(ctx.settings, job_id)
     source = directory / row["path"]
-    target = source.with_suffix("." + fmt_name)
+    if not source.is_file():
+        raise ApiError(410, f"the result file of frame {row['frame']} is gone", "gone")
+    bundle = source.suffix == ".npz"  # every layer; a frame of the beauty alone is a .npy
+    every_layer = fmt_name == "npz" or (fmt_name == "exr" and layer is None)
+    if bundle and fmt_name == "npz":
+        target = source
+    elif bundle:
+        shown = "layers" if every_layer else layer or "default"
+        target = source.with_suffix(f".{shown}.{fmt_name}")
+    else:
+        target = source.with_suffix("." + fmt_name)
     if not target.is_file():
-        if not source.is_file():
-            raise ApiError(410, f"the result file of frame {row['frame']} is gone", "gone")
 
         def convert() -> None:
             metadata = {
@@ -241,14 +260,37 @@ async def _frame_file(ctx: Ctx, job_id: str, frame: int | None, fmt_name: str) -
                 "frame": row["frame"],
                 "spp": row["spp"],
             }
-            write_image(target, read_image(source), metadata)
+            layers, made = read_layers(source) if bundle else ({"beauty": read_image(source)}, {})
+            metadata.update(made)
+            if (every_layer and len(layers) > 1) or fmt_name == "npz":
+                write_layers(target, layers, metadata)
+                return
+            name = layer or ("denoised" if "denoised" in layers else "beauty")
+            if name not in layers:
+                raise ApiError(
+                    404,
+                    f"frame {row['frame']} of job {job_id} has no {name} layer (it has "
+                    f"{', '.join(layers)}; aovs and denoise in the job request add layers)",
+                    "not_found",
+                )
+            write_image(target, layer_as_rgb(layers, name), metadata)
 
         await to_thread.run_sync(convert)
     filename = f"{job_id}_{row['frame']:04d}.{fmt_name}"
     return FileResponse(target, media_type=FORMATS[fmt_name], filename=filename)
 
 
-Format = Annotated[Literal["png", "exr", "npy"], Query(description="image format")]
+Format = Annotated[
+    Literal["png", "exr", "npy", "npz"],
+    Query(description="image format (npz: every layer of the frame as a NumPy bundle)"),
+]
+Layer = Annotated[
+    Literal[OUTPUT_LAYERS] | None,
+    Query(
+        description="the layer to show (png, npy, exr; default: denoised when the job denoises, "
+        "else beauty); an exr without it holds every layer of the frame"
+    ),
+]
 
 
 @router.get(
@@ -257,10 +299,15 @@ Format = Annotated[Literal["png", "exr", "npy"], Query(description="image format
     responses={**errors(410), 200: {"content": {t: {} for t in FORMATS.values()}}},
 )
 async def job_frame(
-    job_id: str, frame: Annotated[int, PathParam(ge=0, le=10**9)], ctx: Ctx, format: Format = "png"
+    job_id: str,
+    frame: Annotated[int, PathParam(ge=0, le=10**9)],
+    ctx: Ctx,
+    format: Format = "png",
+    layer: Layer = None,
 ):
-    """One finished frame as PNG (sRGB 8 bit), EXR or NPY (float32 linear)."""
-    return await _frame_file(ctx, job_id, frame, format)
+    """One finished frame as PNG (sRGB 8 bit), EXR or NPY (float32 linear), or all its layers
+    as a multilayer EXR or an NPZ bundle."""
+    return await _frame_file(ctx, job_id, frame, format, layer)
 
 
 @router.get(
@@ -273,9 +320,10 @@ async def job_result(
     ctx: Ctx,
     format: Format = "png",
     frame: Annotated[int | None, Query(ge=0, le=10**9)] = None,
+    layer: Layer = None,
 ):
     """The result (a still's image, or one frame of an animation: the first by default)."""
-    return await _frame_file(ctx, job_id, frame, format)
+    return await _frame_file(ctx, job_id, frame, format, layer)
 
 
 @router.get(

@@ -5,12 +5,13 @@ import argparse
 from pathlib import Path
 
 from cli.cluster_render import render_through_cluster
-from cli.errors import UsageError
+from cli.errors import CommandFailed, UsageError
 from cli.in_process import render_to_file
-from cli.output import output_path
+from cli.output import check_layer_choice, output_path
 from cluster.jobs import quality_goal, with_overrides
 from cluster.progressive import DEFAULT_MAX_SPP, PARTS, Goal
 from tracer.compiled.scene import compile_scene
+from tracer.post.denoise import DenoiserUnavailable, require_denoiser
 from tracer.scene import format as fmt
 from tracer.scene.loader import load_scene
 from tracer.scene.model import SceneState
@@ -41,12 +42,22 @@ def run(args: argparse.Namespace) -> int:
         max_depth=args.max_depth,
         integrator=args.integrator,
         kernel=args.kernel,
+        aovs=args.aov,
+        denoise=args.denoise,
     )
     camera, settings = state.camera, state.render
+    check_layer_choice(args.layer, settings)
+    if settings.denoise != "off":
+        try:
+            require_denoiser()
+        except DenoiserUnavailable as exc:
+            raise CommandFailed(str(exc)) from None
     frames = frame_selection(state, args.frames)
     if runs_in_process(args, camera, settings, still=frames is None, progressive=goal is not None):
         scene, label = compile_scene(state), Path(args.scene).name
-        render_to_file(scene, camera, settings, [output], args.threads, args.quiet, label)
+        render_to_file(
+            scene, camera, settings, [output], args.threads, args.quiet, label, args.layer
+        )
         return 0
     if frames is None:
         outputs = [output]

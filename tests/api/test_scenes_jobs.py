@@ -165,6 +165,47 @@ def test_job_kernel_choice_same_pixels_and_bad_kernel_refused(client):
     assert client.get("/v1/jobs").json()["count"] == jobs_before
 
 
+def test_job_layers_aovs_and_denoise(client, tmp_path):
+    """A job with aovs and denoise: its frame's default image is the denoised layer, ?layer=
+    gives each layer, format=npz and a multilayer exr hold every layer with the same bits, and
+    the beauty is the plain job's; a layer the frame lacks is a 404, a bad denoise value or
+    AOVs with a first-hit integrator a 422 (and no job is made)."""
+    from tracer.io.layers import layer_as_rgb, read_layers
+
+    scene = upload_tiny(client)
+    base = {"scene_id": scene["id"], "spp": 2, "width": 12, "height": 8}
+    plain = wait_job(client, client.post("/v1/jobs", json=base).json()["id"])
+    r = client.post("/v1/jobs", json={**base, "aovs": True, "denoise": "fast"})
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json()["id"])
+    assert job["status"] == "done", job
+    url = f"/v1/jobs/{job['id']}/frames/0"
+    bundle = tmp_path / "frame.npz"
+    bundle.write_bytes(client.get(f"{url}?format=npz").content)
+    layers, metadata = read_layers(bundle)
+    assert list(layers) == ["beauty", "denoised", "albedo", "normal", "depth", "position", "alpha"]
+    assert metadata["denoise"]["quality"] == "fast"
+    exr = tmp_path / "frame.exr"
+    exr.write_bytes(client.get(f"{url}?format=exr").content)
+    from_exr, _ = read_layers(exr)
+    assert all(np.array_equal(from_exr[n], layers[n]) for n in layers)
+    beauty = np.load(io.BytesIO(client.get(f"/v1/jobs/{plain['id']}/result?format=npy").content))
+    assert np.array_equal(layers["beauty"], beauty)
+    default = np.load(io.BytesIO(client.get(f"{url}?format=npy").content))
+    assert np.array_equal(default, layers["denoised"])
+    for name in ("beauty", "albedo", "depth"):
+        shown = np.load(io.BytesIO(client.get(f"{url}?format=npy&layer={name}").content))
+        assert np.array_equal(shown, layer_as_rgb(layers, name)), name
+    assert client.get(f"{url}?format=png&layer=normal").status_code == 200
+    r = client.get(f"/v1/jobs/{plain['id']}/frames/0?format=png&layer=albedo")
+    assert r.status_code == 404 and "no albedo layer" in r.text
+    jobs_before = client.get("/v1/jobs").json()["count"]
+    for bad in ({"denoise": "best"}, {"aovs": True, "kernel": "stream"}):
+        r = client.post("/v1/jobs", json={**base, **bad})
+        assert r.status_code == 422, r.text
+    assert client.get("/v1/jobs").json()["count"] == jobs_before
+
+
 def test_textured_bundle_renders_like_the_library(client):
     """The textured sample scene uploaded as a bundle (JSON, GLB, OBJ, MTL, PNGs) renders
     through the cluster exactly as the library renders it: its images and UVs reach the

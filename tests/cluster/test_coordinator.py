@@ -30,8 +30,10 @@ from cluster.scene_sync import INLINE_COMMITS
 from tests.scene_states import translation
 from tests.worker.test_replica import CAMERA, studio
 from tracer.compiled.scene import compile_scene
-from tracer.render import render_image, render_lines
+from tracer.integrators import aov
+from tracer.render import render_image, render_lines, render_pixels
 from tracer.request import FrameRequest
+from tracer.scene import format as fmt
 from tracer.scene.codec import encode_commit, encode_state
 from tracer.scene.model import Animation, CameraKey, NodeKey, SceneState
 from worker import line_pool
@@ -399,6 +401,35 @@ def test_frames_with_a_dynamic_tail_equal_render_image(shared, tracers, pooled):
             else:
                 assert kinds.count("tail") >= tracers, kinds
                 assert frame.calls == len(frame.ranges) > tracers
+    finally:
+        coordinator.use_balancer("cost-aware")
+        coordinator.line_pool = True
+
+
+@pytest.mark.parametrize("pooled", TRANSPORTS, ids=TRANSPORT_IDS)
+def test_aovs_travel_with_the_frame_bit_for_bit(shared, pooled):
+    """A frame that asks for AOVs, split over 2 tracers with a dynamic tail (pooled or in
+    calls), and a region of it: the beauty and AOVs are render_pixels' in one call."""
+    coordinator = shared(2)
+    coordinator.balancer = always_tail()
+    coordinator.line_pool = pooled
+    state = coordinator.graph.state
+    settings = fmt.override(state.render, aovs=True)
+    compiled = compile_scene(state)
+    width, height = state.camera.width, state.camera.height
+    whole = render_pixels(compiled, 0, width * height, state.camera, settings, 2, 1)
+    try:
+        frame = coordinator.render_frame(FrameRequest(2, settings=settings, sample_start=1))
+        assert np.array_equal(frame.rgb.reshape(-1, 3), whole.rgb)
+        assert frame.aov.shape == (height, width, aov.CHANNELS)
+        assert np.array_equal(frame.aov.reshape(-1, aov.CHANNELS), whole.aov)
+        assert any(r.kind == "tail" for r in frame.ranges)
+        region = coordinator.render_frame(
+            FrameRequest(2, settings=settings, sample_start=1, region=(227, 253))
+        )
+        assert np.array_equal(region.aov.reshape(-1, aov.CHANNELS), whole.aov[227:253])
+        plain = coordinator.render_frame(FrameRequest(2, sample_start=1))
+        assert plain.aov is None and np.array_equal(plain.rgb, frame.rgb)
     finally:
         coordinator.use_balancer("cost-aware")
         coordinator.line_pool = True

@@ -164,6 +164,30 @@ def test_add_part_checks_its_input():
         progress.add_part(np.zeros((H + 1, W, 3)), 0.1)
 
 
+def test_aovs_of_the_parts_blend_by_their_samples():
+    """Parts that carry AOVs give the frame the sample-weighted mean of them (spot checks
+    leave them alone); a part without AOVs after parts with them is refused."""
+    progress = ProgressiveFrame(W, H, Goal(max_spp=64))
+    total, spp = np.zeros((H, W, 11)), 0
+    while (part := progress.next_part()) is not None:
+        if isinstance(part, SpotCheck):
+            progress.add_spot_checks(np.zeros((0, 2), np.int64), np.zeros((PARTS, 0, 3)), 0.0)
+            continue
+        aov = np.random.default_rng(part.sample_start).uniform(size=(H, W, 11))
+        total += aov * part.spp
+        spp += part.spp
+        progress.add_part(synthetic_part(part.spp, part.sample_start), 0.01, aov=aov)
+    assert progress.spp == spp == 64
+    assert np.allclose(progress.aov, total / spp, atol=1e-6)
+    assert ProgressiveFrame(W, H, Goal()).aov is None
+    mixed = ProgressiveFrame(W, H, Goal())
+    mixed.next_part()
+    mixed.add_part(synthetic_part(1, 0), 0.01, aov=np.zeros((H, W, 11)))
+    mixed.next_part()
+    with pytest.raises(ValueError, match="carries AOVs"):
+        mixed.add_part(synthetic_part(1, 1), 0.01)
+
+
 def lit_pixel_wave(progress: ProgressiveFrame, width: int, height: int) -> None:
     """Render a wave in which part 2 alone saw a light smaller than a pixel at (5, 7) (one
     sample of 1000), on a slightly noisy image."""

@@ -46,6 +46,10 @@ that runs the path kernel's build with the material dispatch
 (``tracer.integrators.path.kernel_for``) even where the plan has no material effect, so every
 surface is still Lambertian. The accuracy study times all of Reiter's stages of a scene in one
 build, as his renderer switched effects at run time."""
+AOVS = 1 << 15
+"""Not an effect: an output switch set by ``tracer.render`` when a render asks for AOVs
+(``render.aovs``). The path kernel then records ``tracer.integrators.aov``'s outputs from its
+paths; the beauty's bits are the same with it or without it."""
 
 EFFECTS = {
     "area_lights": AREA_LIGHTS,

@@ -10,3 +10,14 @@ INTEGRATORS = ("path", "direct", "whitted", "ao", "albedo", "normal", "depth", "
 KERNELS = ("auto", "single", "stream")
 """``render.kernel``'s choices: a kernel by name (``tracer.integrators.registry``), or ``auto``
 for the measured rule (``tracer.integrators.kernel_choice``)."""
+
+AOV_INTEGRATORS = ("path", "direct", "whitted", "cost")
+"""The integrators whose paths give AOVs (``tracer.integrators.aov``): the path kernel's."""
+
+DENOISE = ("off", "fast", "balanced", "high")
+"""``render.denoise``'s choices: off, or an Open Image Denoise quality
+(``tracer.post.denoise``)."""
+
+OUTPUT_LAYERS = ("beauty", "denoised", "albedo", "normal", "depth", "position", "alpha")
+"""A frame's layers (``tracer.post.frame_layers``), in the order files hold them: the beauty,
+the denoised beauty and the AOVs (``tracer.integrators.aov``)."""

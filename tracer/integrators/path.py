@@ -25,7 +25,8 @@ import numpy as np
 
 from tracer.compiled.arrays import borrow_scene
 from tracer.geometry.scene_intersect import scene_closest, scene_occluded
-from tracer.integrators import flags
+from tracer.integrators import aov, flags
+from tracer.integrators.aov import vertex_aov
 from tracer.integrators.vertex import SHADERS, camera_path
 from tracer.kernel.borrow import borrowed
 from tracer.kernel.jit import jit, with_globals
@@ -71,6 +72,7 @@ def path_kernel(materials: bool, lights: bool):
         out_rgb,
         out_cost,
         out_rays,
+        out_aov,
     ):
         """Render pixel blocks ``first, first + stride, ...`` of the pixel run [p0, p1).
 
@@ -78,7 +80,9 @@ def path_kernel(materials: bool, lights: bool):
         line ``p0 // width``; pixels outside the run are left untouched): ``out_rgb`` float32
         (rows, W, 3) gets the mean of samples [sample_start, sample_start + spp) of each pixel,
         ``out_cost`` int64 (rows, W) the work spent on it, ``out_rays`` int64 (rows, W) the rays
-        traced for it (one per traversal: camera, continuation and shadow rays). ``mode`` is
+        traced for it (one per traversal: camera, continuation and shadow rays), and with the
+        plan's ``flags.AOVS`` ``out_aov`` float32 (rows, W, ``aov.CHANNELS``) the mean of the
+        samples' AOVs (``tracer.integrators.aov``; untouched without it). ``mode`` is
         ``vertex.PATH`` or ``vertex.WHITTED``; ``plan`` the effect flags (``integrators.flags``).
         Threads call this with the same stride and different ``first``: interleaved blocks of
         ``PIXEL_BLOCK`` pixels balance lines of very different cost, and keep threads off each
@@ -93,6 +97,7 @@ def path_kernel(materials: bool, lights: bool):
         stack_node = borrowed(stack_node)
         stack_t = borrowed(stack_t)
         y_first = p0 // width  # the line of row 0 of the outputs
+        aovs = (plan & flags.AOVS) != 0
         n_blocks = (p1 - p0 + PIXEL_BLOCK - 1) // PIXEL_BLOCK
         for block in range(first, n_blocks, stride):
             start = p0 + block * PIXEL_BLOCK
@@ -104,14 +109,38 @@ def path_kernel(materials: bool, lights: bool):
                 acc = (0.0, 0.0, 0.0)
                 cost = 0
                 rays = 0
+                a_albedo = (0.0, 0.0, 0.0)
+                a_normal = (0.0, 0.0, 0.0)
+                a_point = (0.0, 0.0, 0.0)
+                a_depth = 0.0
+                a_hits = 0
                 for sample in range(sample_start, sample_start + spp):
                     key = sample_key(p_key, sample)
                     o, d = camera_sample_ray(camera, width, height, x, y, key)
                     state = camera_path()
+                    aov_open = aovs
+                    tint = (1.0, 1.0, 1.0)
                     while True:
                         k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
                         cost += c
                         rays += 1
+                        if aov_open:
+                            aov_open = k >= 0
+                        if aov_open:
+                            final, colour, n, p = vertex_aov(
+                                s, d, k, j, b0, b1, b2, materials, plan
+                            )
+                            if state[5] == 1:  # the camera ray's hit
+                                a_depth += t
+                                a_point = (a_point[0] + p[0], a_point[1] + p[1], a_point[2] + p[2])
+                                a_hits += 1
+                            tint = (tint[0] * colour[0], tint[1] * colour[1], tint[2] * colour[2])
+                            if final:
+                                a_albedo = (a_albedo[0] + tint[0], a_albedo[1] + tint[1],
+                                            a_albedo[2] + tint[2])  # fmt: skip
+                                a_normal = (a_normal[0] + n[0], a_normal[1] + n[1],
+                                            a_normal[2] + n[2])  # fmt: skip
+                                aov_open = False
                         go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld = shade(  # noqa: F821 (with_globals binds it)
                             s, key, d, k, j, t, b0, b1, b2, state, mode, plan, max_depth,
                             rr_depth, shadow_t_max,
@@ -135,6 +164,13 @@ def path_kernel(materials: bool, lights: bool):
                 out_rgb[row, x, 2] = acc[2] / spp
                 out_cost[row, x] = cost
                 out_rays[row, x] = rays
+                if aovs:
+                    for ch in range(3):
+                        out_aov[row, x, aov.ALBEDO + ch] = a_albedo[ch] / spp
+                        out_aov[row, x, aov.NORMAL + ch] = a_normal[ch] / spp
+                        out_aov[row, x, aov.POSITION + ch] = a_point[ch] / spp
+                    out_aov[row, x, aov.DEPTH] = a_depth / spp
+                    out_aov[row, x, aov.ALPHA] = a_hits / spp
 
     trace_pixels.__qualname__ = f"trace_pixels_{'m' if materials else 'l'}{'o' if lights else 't'}"
     return jit(with_globals(trace_pixels, shade=SHADERS[(materials, lights)]))

@@ -12,6 +12,7 @@ import numpy as np
 
 from tracer import config
 from tracer.compiled.scene import CompiledScene
+from tracer.integrators.aov import CHANNELS
 from tracer.kernel.threads import run_parts
 from tracer.scene import format as fmt
 from tracer.shading.camera import camera_array
@@ -60,23 +61,32 @@ def pixel_run(
 
 
 def trace_run(
-    kernel: Callable[..., None], arguments: tuple, run: PixelRun, threads: int | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Call ``kernel(*arguments, part, parts, stack_node, stack_t, out_rgb, out_cost, out_rays)``
-    on ``threads`` threads (default: every CPU this process may use); returns the run's pixels:
-    ``rgb`` float32 (n, 3), ``cost`` int64 (n,) and ``rays`` int64 (n,), n = p1 - p0."""
+    kernel: Callable[..., None],
+    arguments: tuple,
+    run: PixelRun,
+    threads: int | None = None,
+    aovs: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Call ``kernel(*arguments, part, parts, stack_node, stack_t, out_rgb, out_cost, out_rays,
+    out_aov)`` on ``threads`` threads (default: every CPU this process may use); returns the
+    run's pixels: ``rgb`` float32 (n, 3), ``cost`` int64 (n,), ``rays`` int64 (n,) and, with
+    ``aovs`` (the plan's ``flags.AOVS``), ``aov`` float32 (n, ``aov.CHANNELS``) or None;
+    n = p1 - p0."""
     width = run.width
     y_first = run.p0 // width
     rows = (run.p1 - 1) // width + 1 - y_first
     rgb = np.empty((rows, width, 3), np.float32)
     cost = np.empty((rows, width), np.int64)
     rays = np.empty((rows, width), np.int64)
+    # Without AOVs the kernel never writes out_aov: one pixel's worth keeps its type.
+    aov = np.empty((rows, width, CHANNELS) if aovs else (1, 1, CHANNELS), np.float32)
 
     def work(part: int, parts: int) -> None:
         stack_node = np.empty(config.TRAVERSAL_STACK_SIZE, np.int32)
         stack_t = np.empty(config.TRAVERSAL_STACK_SIZE, np.float64)
-        kernel(*arguments, part, parts, stack_node, stack_t, rgb, cost, rays)
+        kernel(*arguments, part, parts, stack_node, stack_t, rgb, cost, rays, aov)
 
     run_parts(work, threads)
     part = slice(run.p0 - y_first * width, run.p1 - y_first * width)
-    return rgb.reshape(-1, 3)[part], cost.reshape(-1)[part], rays.reshape(-1)[part]
+    aov_part = aov.reshape(-1, CHANNELS)[part] if aovs else None
+    return rgb.reshape(-1, 3)[part], cost.reshape(-1)[part], rays.reshape(-1)[part], aov_part

@@ -83,10 +83,12 @@ def stream_kernel(materials: bool, lights: bool):
     def trace_stream(
         scene, camera, width, height, p0, p1, sample_start, spp, max_depth, rr_depth, seed,
         frame, shadow_t_max, mode, plan, first, stride, stack_node, stack_t, out_rgb, out_cost,
-        out_rays,
+        out_rays, out_aov,
     ):  # fmt: skip
         """Render pixel blocks ``first, first + stride, ...`` of the pixel run [p0, p1) into the
-        outputs, as ``tracer.integrators.path``'s kernel does."""
+        outputs, as ``tracer.integrators.path``'s kernel does; it writes no AOVs (``out_aov``
+        is untouched: ``tracer.integrators.kernel_choice`` runs the single-ray kernel for
+        renders that ask for them)."""
         s = borrow_scene(scene)
         camera = borrowed(camera)
         stack_node = borrowed(stack_node)

@@ -68,13 +68,15 @@ def render_surface(
     out_rgb,
     out_cost,
     out_rays,
+    out_aov,
 ):
     """Render ``output`` (``AO``, ``ALBEDO``, ``NORMAL`` or ``DEPTH``) for pixel blocks
     ``first, first + stride, ...`` of the pixel run [p0, p1); arguments and outputs as the path
     kernel's (``tracer.integrators.path.path_kernel``), plus ``ao_samples`` occlusion rays per
     camera sample of length ``ao_length`` (render-space units), and ``textures``: whether the
     albedo output applies base-colour textures (the effect plan's ``TEXTURES``). ``out_rays``
-    gets the rays traced per pixel: each camera ray, and each occlusion ray (``AO`` only)."""
+    gets the rays traced per pixel: each camera ray, and each occlusion ray (``AO`` only).
+    ``out_aov`` is untouched: AOVs come from the path integrators' paths."""
     s = borrow_scene(scene)
     camera = borrowed(camera)
     stack_node = borrowed(stack_node)

@@ -82,7 +82,8 @@ def write_image(path: str | Path, rgb: np.ndarray, metadata: dict | None = None)
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an image written by :func:`write_image` as float32 (H, W, 3) (PNG stays sRGB/255)."""
+    """Read an image written by :func:`write_image` as float32 (H, W, 3) (PNG stays sRGB/255;
+    an EXR's default layer, without its alpha)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".npy":
@@ -91,7 +92,9 @@ def read_image(path: str | Path) -> np.ndarray:
         import OpenEXR
 
         with OpenEXR.File(str(path)) as f:
-            return np.array(f.channels()["RGB"].pixels, dtype=np.float32)
+            channels = f.channels()  # R, G, B grouped as "RGB", or "RGBA" with an alpha
+            rgb = channels["RGB"] if "RGB" in channels else channels["RGBA"]
+            return np.array(rgb.pixels[..., :3], dtype=np.float32)
     from PIL import Image
 
     return np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0

@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from tracer import config
-from tracer.integrators.names import INTEGRATORS, KERNELS
+from tracer.integrators.names import AOV_INTEGRATORS, DENOISE, INTEGRATORS, KERNELS
 from tracer.maths import portable
 from tracer.scene.format_animation import (
     MAX_FRAMES,
@@ -278,6 +278,17 @@ class RenderSettings(Strict):
         "paths a stage at a time), or auto (the choice the measured rule makes for the "
         "integrator and scene; docs/performance.md). The same image bit for bit either way",
     )
+    aovs: bool = Field(
+        default=False,
+        description="Also render the AOV layers albedo, normal, depth, position and alpha from "
+        "the same paths (path, direct, whitted and cost integrators; docs/outputs.md)",
+    )
+    denoise: Literal[DENOISE] = Field(
+        default="off",
+        description="Denoise the assembled frame with Open Image Denoise at this quality "
+        "(fast, balanced, high), guided by the albedo and normal AOVs where the integrator "
+        "gives them; the beauty layer is kept (docs/denoising.md)",
+    )
     ao_samples: int = Field(
         default=4, ge=1, le=1024, description="Ambient occlusion rays per camera sample"
     )
@@ -286,6 +297,25 @@ class RenderSettings(Strict):
         description="Ambient occlusion ray length, as a fraction of the scene's bounding-box "
         "diagonal",
     )
+
+    @property
+    def renders_aovs(self) -> bool:
+        """Whether the kernel records AOVs: asked for, or guides for the denoiser."""
+        return self.aovs or (self.denoise != "off" and self.integrator in AOV_INTEGRATORS)
+
+    @model_validator(mode="after")
+    def _aovs_possible(self) -> "RenderSettings":
+        if self.aovs and self.integrator not in AOV_INTEGRATORS:
+            raise ValueError(
+                f"the {self.integrator} integrator gives no AOVs (they come from the paths of "
+                f"{', '.join(AOV_INTEGRATORS)})"
+            )
+        if self.renders_aovs and self.kernel == "stream":
+            raise ValueError(
+                "the stream kernel does not record AOVs yet (aovs or denoise ask for them); "
+                "use kernel auto or single"
+            )
+        return self
 
     @field_validator("effects")
     @classmethod

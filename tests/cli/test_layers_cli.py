@@ -1,0 +1,104 @@
+"""`tilerender render --aov / --denoise / --layer`: the layers a render writes, in one file or
+one at a time, and the errors for layers and combinations that cannot be."""
+
+import numpy as np
+import pytest
+
+from tests.cli.test_cli import assert_usage_error, run
+from tracer.io.images import read_image
+from tracer.io.layers import layer_as_rgb, read_layers
+from tracer.post import denoise as denoise_module
+
+SIZE = ("--width", 24, "--height", 16, "--spp", 2, "-q")
+
+
+def test_aov_and_denoise_write_every_layer_to_an_exr_and_an_npz(capsys, tmp_path, tiny_scene_file):
+    """With --aov --denoise, a .exr and a .npz hold the same layers with the same bits; the
+    beauty is the plain render's; the metadata says how the frame was denoised."""
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", tmp_path / "plain.npy", *SIZE)
+    assert code == 0, err
+    layers = {}
+    for suffix in (".exr", ".npz"):
+        out = tmp_path / f"frame{suffix}"
+        code, _, err = run(
+            capsys, "render", tiny_scene_file, "-o", out, *SIZE, "--aov", "--denoise"
+        )
+        assert code == 0, err
+        layers[suffix], metadata = read_layers(out)
+        assert metadata["denoise"]["quality"] == "high"
+        assert metadata["denoise"]["guides"] == ["albedo", "normal"]
+        assert metadata["render"]["aovs"] is True
+    names = ["beauty", "denoised", "albedo", "normal", "depth", "position", "alpha"]
+    assert list(layers[".exr"]) == names and list(layers[".npz"]) == names
+    for name in names:
+        assert np.array_equal(layers[".exr"][name], layers[".npz"][name]), name
+    assert np.array_equal(layers[".exr"]["beauty"], read_image(tmp_path / "plain.npy"))
+    assert not np.array_equal(layers[".exr"]["denoised"], layers[".exr"]["beauty"])
+
+
+def test_a_single_layer_image_shows_the_chosen_layer(capsys, tmp_path, tiny_scene_file):
+    """A .npy shows the denoised layer by default with --denoise, and --layer picks another;
+    a --denoise without --aov still guides the denoiser but keeps no AOV file layer."""
+    bundle = tmp_path / "all.npz"
+    code, _, err = run(
+        capsys, "render", tiny_scene_file, "-o", bundle, *SIZE, "--aov", "--denoise", "fast"
+    )
+    assert code == 0, err
+    layers, _ = read_layers(bundle)
+    for layer, expected in [(None, "denoised"), ("albedo", "albedo"), ("depth", "depth")]:
+        out = tmp_path / f"{layer}.npy"
+        extra = () if layer is None else ("--layer", layer)
+        code, _, err = run(
+            capsys,
+            "render",
+            tiny_scene_file,
+            "-o",
+            out,
+            *SIZE,
+            "--aov",
+            "--denoise",
+            "fast",
+            *extra,
+        )
+        assert code == 0, err
+        assert np.array_equal(read_image(out), layer_as_rgb(layers, expected)), layer
+    exr = tmp_path / "denoised.exr"
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", exr, *SIZE, "--denoise", "fast")
+    assert code == 0, err
+    assert list(read_layers(exr)[0]) == ["beauty", "denoised"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (("--layer", "albedo"), ("--layer albedo", "beauty", "--aov adds")),
+        (("--layer", "denoised", "--aov"), ("--layer denoised", "--denoise")),
+        (("--aov", "--integrator", "ao"), ("ao integrator gives no AOVs",)),
+        (("--denoise", "--kernel", "stream"), ("stream kernel does not record AOVs",)),
+        (("--denoise", "best"), ("invalid choice: 'best'",)),
+        (("--layer", "shadow"), ("invalid choice: 'shadow'",)),
+    ],
+)
+def test_impossible_layers_are_usage_errors(capsys, tmp_path, tiny_scene_file, extra, words):
+    """A layer the render will not have, AOVs where no paths give them, and unknown names end
+    with exit code 2 and the reason, before anything is written."""
+    out = tmp_path / "x.png"
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, *SIZE, *extra)
+    assert_usage_error(code, err, *words)
+    assert not out.exists()
+
+
+def test_a_missing_denoiser_fails_the_command_with_a_message(
+    capsys, tmp_path, monkeypatch, tiny_scene_file
+):
+    """Without pyoidn, --denoise ends with a one-line message naming the package, not a
+    traceback, and writes nothing."""
+
+    def unavailable():
+        raise denoise_module.DenoiserUnavailable("denoising needs the pyoidn package")
+
+    monkeypatch.setattr(denoise_module, "_load_pyoidn", unavailable)
+    out = tmp_path / "x.png"
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, *SIZE, "--denoise")
+    assert code != 0 and "pyoidn" in err and "Traceback" not in err
+    assert not out.exists()

@@ -1,0 +1,82 @@
+"""Arbitrary output variables (AOVs) from the path tracer's own paths: what the denoiser's guides
+and compositors read, gathered while the beauty is traced (no second camera pass).
+
+Per camera sample the path kernel (``tracer.integrators.path``) records, with the plan's
+``flags.AOVS`` bit:
+
+- ``albedo`` and ``normal`` at the path's first non-delta vertex, following mirrors, smooth
+  conductors and glass as Cycles and Open Image Denoise recommend: the albedo is the colour
+  ``bsdf.bsdf_albedo`` gives that vertex (textured), times the colours of the delta vertices
+  before it; the normal is its geometric normal facing the ray. Glass picks reflection or
+  refraction per sample, so the mean over samples is their Fresnel blend. A path that escapes,
+  or ends, before such a vertex adds zero to both.
+- ``depth`` (the distance along the camera ray), ``position`` (the world-space point) and
+  ``alpha`` (1 where the camera ray hits something) at the camera ray's hit; 0 where it misses.
+
+Each is the mean over the pixel's samples, like the beauty, so it is as independent of the
+frame's split and threads as the beauty. The kernel accumulates positions in render space;
+``world_positions`` adds the scene's origin where the camera rays hit.
+"""
+
+import numpy as np
+
+from tracer.geometry.scene_intersect import material_of, surface
+from tracer.integrators import flags
+from tracer.kernel.jit import jit_inline
+from tracer.maths.vecmath import dot
+from tracer.shading.bsdf import DIFFUSE, bsdf_albedo, bsdf_is_delta
+from tracer.shading.textures import textured_albedo
+
+ALBEDO = 0
+NORMAL = 3
+DEPTH = 6
+POSITION = 7
+ALPHA = 10
+CHANNELS = 11
+"""Columns of the kernels' AOV output: albedo (3), normal (3), depth, position (3), alpha."""
+
+LAYERS = {
+    "albedo": slice(ALBEDO, ALBEDO + 3),
+    "normal": slice(NORMAL, NORMAL + 3),
+    "depth": DEPTH,
+    "position": slice(POSITION, POSITION + 3),
+    "alpha": ALPHA,
+}
+"""Each AOV layer's columns."""
+
+
+@jit_inline
+def vertex_aov(s, d, k, j, b0, b1, b2, materials, plan):
+    """What a path vertex gives the AOVs: ``(final, colour, normal, point)``. A non-delta
+    vertex is ``final``: ``colour`` is its albedo, ``normal`` its geometric normal facing the
+    ray; a delta vertex passes the colour that tints what lies beyond it. ``point`` is the
+    render-space hit point."""
+    mat = material_of(s, k, j)
+    _, _, _, p, ng = surface(s, k, j, b0, b1, b2)
+    n = ng if dot(ng, d) < 0.0 else (-ng[0], -ng[1], -ng[2])
+    albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
+              np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
+    if plan & flags.TEXTURES:
+        albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
+    final = True
+    if materials and plan & flags.MATERIAL_EFFECTS:
+        kind = s.mat_kind[mat]
+        if kind != DIFFUSE:
+            param = s.mat_param[mat]
+            final = not bsdf_is_delta(kind, param)
+            albedo = bsdf_albedo(kind, albedo, param)
+    return final, albedo, n, p
+
+
+def world_positions(aov: np.ndarray, origin: np.ndarray) -> None:
+    """Move the kernels' render-space positions (``aov``, (n, CHANNELS)) to world space in
+    place: the origin, weighted by the share of samples that hit (``alpha``)."""
+    aov[:, POSITION : POSITION + 3] += (
+        aov[:, ALPHA : ALPHA + 1].astype(np.float64) * np.asarray(origin, np.float64)
+    ).astype(np.float32)
+
+
+def aov_layers(aov: np.ndarray) -> dict[str, np.ndarray]:
+    """The AOV channels (H, W, CHANNELS) as named layers: (H, W, 3) for albedo, normal and
+    position, (H, W) for depth and alpha."""
+    return {name: np.ascontiguousarray(aov[..., columns]) for name, columns in LAYERS.items()}

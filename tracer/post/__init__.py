@@ -1,0 +1,1 @@
+"""Image operations on an assembled frame: denoising."""

@@ -1,0 +1,57 @@
+"""A finished frame's layers: the beauty, its AOVs by name and, when the settings ask for it, the
+denoised beauty, made once from the assembled frame (never per tracer range: seams)."""
+
+import numpy as np
+
+from tracer.integrators.aov import LAYERS, aov_layers
+from tracer.scene import format as fmt
+
+
+def rendered_layers(settings: fmt.RenderSettings) -> tuple[str, ...]:
+    """The layers a render with ``settings`` has, in file order."""
+    names = ["beauty"]
+    if settings.denoise != "off":
+        names.append("denoised")
+    if settings.aovs:
+        names += list(LAYERS)
+    return tuple(names)
+
+
+def frame_layers(
+    rgb: np.ndarray,
+    aov: np.ndarray | None,
+    settings: fmt.RenderSettings,
+    threads: int | None = None,
+) -> tuple[dict[str, np.ndarray], dict]:
+    """The layers of an assembled frame (``rgb`` (H, W, 3), ``aov`` (H, W, ``aov.CHANNELS``)
+    or None) and what making them took, for the image's metadata.
+
+    The AOV layers are kept when ``settings.aovs`` asks for them; else they only guide the
+    denoiser. When ``settings.denoise`` asks for the denoised layer, the albedo and normal
+    guide it where the frame has them (prefiltered: they are as noisy as the samples that made
+    them), and the metadata is ``{"denoise": {...}}`` (its quality, guides and seconds); else
+    ``{}``."""
+    layers = {"beauty": rgb}
+    aovs = aov_layers(aov) if aov is not None else {}
+    if settings.denoise == "off":
+        return {**layers, **aovs}, {}
+    from tracer.post.denoise import denoise
+
+    albedo, normal = aovs.get("albedo"), aovs.get("normal")
+    done = denoise(rgb, albedo, normal, quality=settings.denoise, threads=threads)
+    layers["denoised"] = done.image
+    if settings.aovs:  # else they were the denoiser's guides only
+        layers.update(aovs)
+    info = {
+        "quality": done.quality,
+        "guides": list(done.guides),
+        "prefiltered": done.prefiltered,
+        "seconds": round(done.seconds, 4),
+    }
+    return layers, {"denoise": info}
+
+
+def default_layer(settings: fmt.RenderSettings) -> str:
+    """The layer a single-layer image (PNG, NPY, a plain EXR) shows unless asked for another:
+    the denoised beauty when there is one, else the beauty."""
+    return "beauty" if settings.denoise == "off" else "denoised"
