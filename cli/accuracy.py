@@ -497,7 +497,7 @@ def study_scene(
     scene = compile_scene(load_scene(path))
     width, height = study_size(scene.camera.width, scene.camera.height, options.pixels)
     camera = fmt.override(scene.camera, width=width, height=height)
-    base = fmt.override(scene.render, seed=options.seed)
+    base = fmt.override(scene.render, seed=options.seed, aovs=False, denoise="off")
     ref, note = independent_reference(path.parent, width, height, base)
     configs = configurations(base)
     on_start(name, planned_spp(options, len(configs), ref is None))

@@ -239,7 +239,7 @@ def add_kernel_option(parser: argparse.ArgumentParser) -> None:
 def add_layer_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--aov",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
         default=None,
         help="also render the AOV layers albedo, normal, depth, position and alpha from the "
         "same paths (path, direct, whitted, cost); a .exr then holds every layer as named "
@@ -249,18 +249,19 @@ def add_layer_options(parser: argparse.ArgumentParser) -> None:
         "--denoise",
         nargs="?",
         const="high",
-        choices=[q for q in DENOISE if q != "off"],
+        choices=DENOISE,
         metavar="QUALITY",
         help="denoise the finished frame with Open Image Denoise: fast, balanced or high "
-        "(the default when QUALITY is left out), guided by the albedo and normal AOVs; the "
+        "(the default when QUALITY is left out; off overrides a scene's render.denoise), "
+        "guided by the albedo and normal AOVs; the "
         "image shows the denoised layer, a .exr or .npz keeps the beauty beside it "
         "(docs/denoising.md)",
     )
     parser.add_argument(
         "--layer",
         choices=OUTPUT_LAYERS,
-        help="the layer a .png, .npy or single-layer .exr shows (default: denoised with "
-        "--denoise, else beauty)",
+        help="write this layer alone (a .png, .npy or .exr; default: every layer to a .exr "
+        "that has several, else denoised with --denoise, else beauty)",
     )
 
 

@@ -11,7 +11,7 @@ from cli.errors import CommandFailed, UsageError
 from tracer.io.images import check_output_path, write_image
 from tracer.io.layers import check_layers_path, layer_as_rgb, write_layers
 from tracer.kernel import numba_cache
-from tracer.post.denoise import DenoiserUnavailable
+from tracer.post.denoise import DenoiseFailed, DenoiserUnavailable
 from tracer.post.frame_layers import default_layer, frame_layers, rendered_layers
 from tracer.scene import format as fmt
 
@@ -79,20 +79,23 @@ def write_output(
 ) -> dict:
     """Write a frame the command renders: its layers (``tracer.post.frame_layers``: the
     denoised one made here when ``settings`` ask for it) to a ``.npz``, or to a ``.exr`` when
-    there are several, else ``layer`` (default ``default_layer``) as an image. Returns what
+    there are several and no ``layer`` is named, else ``layer`` (default ``default_layer``) as
+    an image (as it is in float formats; a PNG maps normals and depth for viewing). Returns what
     making the layers took (the denoiser's report, in the metadata too). A file that cannot be
     written is a UsageError; a missing denoiser a CommandFailed."""
     settings = settings or fmt.RenderSettings()
     try:
         layers, info = frame_layers(rgb, aov, settings)
-    except DenoiserUnavailable as exc:
+    except (DenoiserUnavailable, DenoiseFailed) as exc:
         raise CommandFailed(str(exc)) from None
     metadata = {**metadata, **info}
     try:
-        if path.suffix.lower() == ".npz" or (path.suffix.lower() == ".exr" and len(layers) > 1):
+        suffix = path.suffix.lower()
+        if suffix == ".npz" or (suffix == ".exr" and len(layers) > 1 and layer is None):
             write_layers(path, layers, metadata)
         else:
-            write_image(path, layer_as_rgb(layers, layer or default_layer(settings)), metadata)
+            shown = layer_as_rgb(layers, layer or default_layer(settings), view=suffix == ".png")
+            write_image(path, shown, metadata)
     except OSError as exc:
         raise UsageError(f"cannot write {path}: {exc.strerror or exc}") from None
     return info

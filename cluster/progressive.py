@@ -34,6 +34,7 @@ import numpy as np
 
 from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
 from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
+from tracer.integrators.aov import CHANNELS
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
@@ -209,6 +210,8 @@ class ProgressiveFrame:
             raise ValueError(f"expected an image of shape {self.sums.shape[1:]}, got {rgb.shape}")
         if (aov is None) != (self.aov_sums is None) and self.spp > 0:
             raise ValueError("every part of a frame carries AOVs, or none does")
+        if aov is not None and np.shape(aov) != (self.height, self.width, CHANNELS):
+            raise ValueError(f"expected AOVs of shape {(self.height, self.width, CHANNELS)}")
         self._pending = None
         if aov is not None:
             if self.aov_sums is None:

@@ -186,7 +186,10 @@ class InteractiveSession:
         width = max(1, round(camera.width * scale))
         height = max(1, round(camera.height * scale))
         small = camera.model_copy(update={"width": width, "height": height})
-        settings = self.graph.state.render.model_copy(update={"spp": spp})
+        # Interactive frames show the beauty only: no AOVs, no denoising per frame.
+        settings = self.graph.state.render.model_copy(
+            update={"spp": spp, "aovs": False, "denoise": "off"}
+        )
         motion = (
             0.0 if self._rendered_camera is None else camera_motion(self._rendered_camera, small)
         )

@@ -243,6 +243,13 @@ async def _frame_file(
     if not source.is_file():
         raise ApiError(410, f"the result file of frame {row['frame']} is gone", "gone")
     bundle = source.suffix == ".npz"  # every layer; a frame of the beauty alone is a .npy
+    if not bundle and layer not in (None, "beauty"):
+        raise ApiError(
+            404,
+            f"frame {row['frame']} of job {job_id} has no {layer} layer (it has beauty; aovs "
+            "and denoise in the job request add layers)",
+            "not_found",
+        )
     every_layer = fmt_name == "npz" or (fmt_name == "exr" and layer is None)
     if bundle and fmt_name == "npz":
         target = source
@@ -273,7 +280,7 @@ async def _frame_file(
                     f"{', '.join(layers)}; aovs and denoise in the job request add layers)",
                     "not_found",
                 )
-            write_image(target, layer_as_rgb(layers, name), metadata)
+            write_image(target, layer_as_rgb(layers, name, view=fmt_name == "png"), metadata)
 
         await to_thread.run_sync(convert)
     filename = f"{job_id}_{row['frame']:04d}.{fmt_name}"

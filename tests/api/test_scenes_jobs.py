@@ -195,8 +195,9 @@ def test_job_layers_aovs_and_denoise(client, tmp_path):
     assert np.array_equal(default, layers["denoised"])
     for name in ("beauty", "albedo", "depth"):
         shown = np.load(io.BytesIO(client.get(f"{url}?format=npy&layer={name}").content))
-        assert np.array_equal(shown, layer_as_rgb(layers, name)), name
+        assert np.array_equal(shown, layer_as_rgb(layers, name, view=False)), name
     assert client.get(f"{url}?format=png&layer=normal").status_code == 200
+    assert client.get(f"/v1/jobs/{plain['id']}/frames/0?format=png").status_code == 200
     r = client.get(f"/v1/jobs/{plain['id']}/frames/0?format=png&layer=albedo")
     assert r.status_code == 404 and "no albedo layer" in r.text
     jobs_before = client.get("/v1/jobs").json()["count"]

@@ -61,11 +61,20 @@ def test_a_single_layer_image_shows_the_chosen_layer(capsys, tmp_path, tiny_scen
             *extra,
         )
         assert code == 0, err
-        assert np.array_equal(read_image(out), layer_as_rgb(layers, expected)), layer
+        assert np.array_equal(read_image(out), layer_as_rgb(layers, expected, view=False)), layer
     exr = tmp_path / "denoised.exr"
     code, _, err = run(capsys, "render", tiny_scene_file, "-o", exr, *SIZE, "--denoise", "fast")
     assert code == 0, err
     assert list(read_layers(exr)[0]) == ["beauty", "denoised"]
+    # Float formats keep a layer's values; a named layer with a .exr is that layer alone.
+    depth = tmp_path / "depth.exr"
+    code, _, err = run(
+        capsys, "render", tiny_scene_file, "-o", depth, *SIZE, "--aov", "--layer", "depth"
+    )
+    assert code == 0, err
+    assert list(read_layers(depth)[0]) == ["beauty"]
+    assert np.array_equal(read_image(depth)[..., 0], layers["depth"])
+    assert read_image(depth).max() > 1.0
 
 
 @pytest.mark.parametrize(
@@ -102,3 +111,18 @@ def test_a_missing_denoiser_fails_the_command_with_a_message(
     code, _, err = run(capsys, "render", tiny_scene_file, "-o", out, *SIZE, "--denoise")
     assert code != 0 and "pyoidn" in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_no_aov_and_denoise_off_override_the_scene(capsys, tmp_path):
+    """A scene that asks for AOVs and denoising gets them by default; --no-aov --denoise off
+    render its beauty alone."""
+    from tests.helpers import tiny_scene, write_json
+
+    data = tiny_scene()
+    data["render"].update(aovs=True, denoise="fast")
+    scene = write_json(tmp_path / "scene.json", data)
+    for extra, names in [((), 7), (("--no-aov", "--denoise", "off"), 1)]:
+        out = tmp_path / f"{len(extra)}.exr"
+        code, _, err = run(capsys, "render", scene, "-o", out, *SIZE, *extra)
+        assert code == 0, err
+        assert len(read_layers(out)[0]) == names

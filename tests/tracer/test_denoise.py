@@ -206,8 +206,8 @@ def test_one_device_per_thread_count_is_kept(monkeypatch):
     assert denoise_module._devices[1].device is device
     two = denoise(beauty, quality="fast", threads=2).image
     assert sorted(denoise_module._devices) == [1, 2]
-    # Measured here: the thread count does not change OIDN's result on one machine.
-    assert np.array_equal(one, two)
+    # Measured here: the same bits with 1 and 2 threads; promised nowhere, so only close.
+    assert np.allclose(one, two, rtol=1e-4, atol=1e-6)
 
 
 def test_concurrent_calls_agree():

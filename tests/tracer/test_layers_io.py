@@ -27,7 +27,7 @@ CHANNELS = [
     "normal.X", "normal.Y", "normal.Z",
     "Z",
     "position.X", "position.Y", "position.Z",
-    "A",
+    "alpha.A",
 ]  # fmt: skip
 """The multilayer EXR's channels, written out by hand (not derived from the module)."""
 

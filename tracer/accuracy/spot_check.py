@@ -41,7 +41,9 @@ makes way for the next (a pixel checked before only needs its top-up)."""
 
 def spot_check_settings(settings: fmt.RenderSettings, part: int) -> fmt.RenderSettings:
     """The render's settings on part ``part``'s stream of the spot checks."""
-    return fmt.override(settings, seed=settings.seed ^ SEED_BIT ^ (part << PART_SHIFT))
+    return fmt.override(
+        settings, seed=settings.seed ^ SEED_BIT ^ (part << PART_SHIFT), aovs=False, denoise="off"
+    )
 
 
 def render_spot_checks(

@@ -3,8 +3,9 @@
 A frame's layers are a ``dict`` from the names in :data:`LAYERS` to float32 arrays, (H, W, 3),
 or (H, W) for ``depth`` and ``alpha``; ``beauty`` is required and every layer has the same H and
 W. The EXR names its channels as compositors (Nuke, Blender, OpenImageIO) read layers
-(:data:`EXR_CHANNELS`): the beauty is the default layer ``R``, ``G``, ``B``; depth and alpha are
-OpenEXR's standard ``Z`` and ``A``.
+(:data:`EXR_CHANNELS`): the beauty is the default layer ``R``, ``G``, ``B``; depth is OpenEXR's
+standard ``Z``; alpha is a layer of its own (``alpha.A``), since the beauty (sky included) is
+not premultiplied by it.
 The ``.npz`` holds one array per layer and the metadata JSON as a 0-d string array
 ``metadata``. Writes are atomic (``tracer.io.files``), like ``tracer.io.images``.
 """
@@ -34,7 +35,7 @@ EXR_CHANNELS: dict[str, tuple[str, ...]] = {
     "normal": ("normal.X", "normal.Y", "normal.Z"),
     "depth": ("Z",),
     "position": ("position.X", "position.Y", "position.Z"),
-    "alpha": ("A",),
+    "alpha": ("alpha.A",),  # not the default layer's A: the beauty is not premultiplied
 }
 """Each layer's EXR channel names, in the order of the array's last axis."""
 
@@ -165,17 +166,20 @@ def _checked(path: Path, layers: dict[str, np.ndarray]) -> dict[str, np.ndarray]
         raise ValueError(f"{path}: {exc}") from None
 
 
-def layer_as_rgb(layers: dict[str, np.ndarray], name: str) -> np.ndarray:
+def layer_as_rgb(layers: dict[str, np.ndarray], name: str, view: bool = True) -> np.ndarray:
     """Layer ``name`` as a float32 (H, W, 3) image for ``tracer.io.images.write_image``. Colour
     layers and ``position`` are as they are; ``normal`` is mapped from [-1, 1] to [0, 1]
     (``(n + 1) / 2``, for viewing only); ``depth`` is divided by its largest finite value (by 1
     if none is positive), clamped to [0, 1] (+inf is 1, NaN 0) and repeated in 3 channels;
-    ``alpha`` is repeated in 3 channels."""
+    ``alpha`` is repeated in 3 channels. With ``view=False`` (float formats) every layer keeps
+    its values: only one-channel layers are repeated in 3 channels."""
     if name not in LAYERS or name not in layers:
         raise ValueError(
             f"no layer {name!r}; the layers present are " + (", ".join(layers) or "none")
         )
     array = _check_layer(name, layers[name])
+    if not view:
+        return np.repeat(array[..., None], 3, axis=2) if array.ndim == 2 else array.copy()
     if name == "normal":
         return (array + np.float32(1.0)) * np.float32(0.5)
     if name == "alpha":

@@ -35,10 +35,13 @@ def frame_layers(
     aovs = aov_layers(aov) if aov is not None else {}
     if settings.denoise == "off":
         return {**layers, **aovs}, {}
-    from tracer.post.denoise import denoise
+    from tracer.post.denoise import DenoiseFailed, denoise
 
     albedo, normal = aovs.get("albedo"), aovs.get("normal")
-    done = denoise(rgb, albedo, normal, quality=settings.denoise, threads=threads)
+    try:
+        done = denoise(rgb, albedo, normal, quality=settings.denoise, threads=threads)
+    except ValueError as exc:  # a frame OIDN cannot take (the renderer's bug, not the user's)
+        raise DenoiseFailed(f"the frame cannot be denoised: {exc}") from None
     layers["denoised"] = done.image
     if settings.aovs:  # else they were the denoiser's guides only
         layers.update(aovs)
