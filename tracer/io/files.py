@@ -1,4 +1,5 @@
-"""Atomic file writes: a file appears under its name complete, or not at all.
+"""Atomic file writes (a file appears under its name complete, or not at all), and the check
+that an output path names a format we write.
 
 The data goes to a temporary file in the target's directory, is flushed to disk, and is
 renamed into place; a failed or interrupted write removes the temporary file and leaves any
@@ -47,3 +48,17 @@ def _read_umask() -> int:
 
 
 _UMASK = _read_umask()  # once, at import: os.umask is process-wide and not thread-safe to probe
+
+
+def output_file(path: str | Path, formats: tuple[str, ...], kind: str) -> Path:
+    """``path`` if its extension is one of ``formats`` and it is not a directory; ValueError
+    naming the ``kind`` of format and the ones there are otherwise."""
+    path = Path(path)
+    if path.suffix.lower() not in formats:
+        raise ValueError(
+            f"{path}: unknown {kind} format {path.suffix or '(none)'!r}; use one of "
+            + ", ".join(formats)
+        )
+    if path.is_dir():
+        raise ValueError(f"{path}: is a directory")
+    return path

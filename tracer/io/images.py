@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracer.io.files import atomic_path
+from tracer.io.files import atomic_path, output_file
 from tracer.kernel.jit import jit
 
 FORMATS = (".png", ".exr", ".npy")
@@ -35,15 +35,7 @@ def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
 
 def check_output_path(path: str | Path) -> Path:
     """The output path, if its extension names a format we write; ValueError otherwise."""
-    path = Path(path)
-    if path.suffix.lower() not in FORMATS:
-        raise ValueError(
-            f"{path}: unknown image format {path.suffix or '(none)'!r}; use one of "
-            + ", ".join(FORMATS)
-        )
-    if path.is_dir():
-        raise ValueError(f"{path}: is a directory")
-    return path
+    return output_file(path, FORMATS, "image")
 
 
 def write_image(path: str | Path, rgb: np.ndarray, metadata: dict | None = None) -> Path:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracer.io.files import atomic_path
+from tracer.io.files import atomic_path, output_file
 
 LAYERS: dict[str, int] = {
     "beauty": 3,
@@ -44,15 +44,7 @@ LAYER_FORMATS = (".exr", ".npz")
 
 def check_layers_path(path: str | Path) -> Path:
     """The output path, if its extension names a layers format; ValueError otherwise."""
-    path = Path(path)
-    if path.suffix.lower() not in LAYER_FORMATS:
-        raise ValueError(
-            f"{path}: unknown layers format {path.suffix or '(none)'!r}; use one of "
-            + ", ".join(LAYER_FORMATS)
-        )
-    if path.is_dir():
-        raise ValueError(f"{path}: is a directory")
-    return path
+    return output_file(path, LAYER_FORMATS, "layers")
 
 
 def _check_layer(name: str, array: np.ndarray) -> np.ndarray:
