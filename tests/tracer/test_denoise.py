@@ -219,3 +219,30 @@ def test_concurrent_calls_agree():
         results = list(pool.map(lambda _: denoise(beauty, ALBEDO, quality="fast"), range(6)))
     for result in results:
         assert np.array_equal(result.image, expected)
+
+
+def test_guides_are_prefiltered_at_most_at_balanced(monkeypatch):
+    """The guides' prefilters run at PREFILTER_QUALITY of the beauty's quality (at most
+    balanced), the beauty at its own; OIDN sees the levels of oidn.h."""
+    calls = []
+    run_filter = denoise_module._run_filter
+
+    def recording(pyoidn, entry, images, options):
+        calls.append((tuple(k for k in images if k != "output"), options["quality"]))
+        return run_filter(pyoidn, entry, images, options)
+
+    monkeypatch.setattr(denoise_module, "_run_filter", recording)
+    levels = {"fast": 4, "balanced": 5, "high": 6}
+    for quality, guide_quality in [
+        ("fast", "fast"),
+        ("balanced", "balanced"),
+        ("high", "balanced"),
+    ]:
+        assert denoise_module.PREFILTER_QUALITY[quality] == guide_quality
+        calls.clear()
+        denoise(noisy(), ALBEDO, NORMAL, quality=quality)
+        assert calls == [
+            (("albedo",), levels[guide_quality]),
+            (("normal",), levels[guide_quality]),
+            (("color", "albedo", "normal"), levels[quality]),
+        ]

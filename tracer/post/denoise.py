@@ -28,6 +28,11 @@ QUALITIES = ("fast", "balanced", "high")
 
 _OIDN_QUALITY = {"fast": 4, "balanced": 5, "high": 6}  # the values of OIDNQuality (oidn.h)
 
+PREFILTER_QUALITY = {"fast": "fast", "balanced": "balanced", "high": "balanced"}
+"""The quality the guides are prefiltered at, for each quality of the beauty: at most
+``balanced``, which measured about the error of ``high`` prefilters in much less time
+(``docs/denoising.md``, Guides and prefiltering)."""
+
 _INSTALL_HINT = "install the locked dependencies (./dev shell true) or pip install 'pyoidn>=2.5'"
 
 
@@ -143,19 +148,27 @@ def denoise(
     quality: str = "high",
     threads: int | None = None,
     prefilter: bool = True,
+    prefilter_quality: str | None = None,
 ) -> Denoised:
     """Denoise a linear HDR ``beauty`` (H, W, 3) with OIDN's ``RT`` filter on the CPU.
 
     ``albedo`` (clamped to [0, 1]) and ``normal`` (world space, in [-1, 1]) are optional guides
     of the same shape; a normal needs an albedo. With ``prefilter`` the guides are denoised
-    first and the beauty with ``cleanAux``; without it OIDN takes them as they are (right for
-    noise-free guides). ``threads`` defaults to the CPUs this process may use. The caller's
-    arrays are never modified. Raises ValueError for bad input, DenoiserUnavailable when pyoidn
-    or OIDN's CPU device is missing, DenoiseFailed when OIDN reports an error.
+    first (at ``prefilter_quality``, default ``PREFILTER_QUALITY[quality]``) and the beauty
+    with ``cleanAux``; without it OIDN
+    takes them as they are (right for noise-free guides). ``threads`` defaults to the CPUs this
+    process may use. The caller's arrays are never modified. Raises ValueError for bad input,
+    DenoiserUnavailable when pyoidn or OIDN's CPU device is missing, DenoiseFailed when OIDN
+    reports an error.
     """
     start = time.perf_counter()
     if quality not in QUALITIES:
         raise ValueError(f"quality must be one of {', '.join(QUALITIES)}, not {quality!r}")
+    prefilter_quality = prefilter_quality or PREFILTER_QUALITY[quality]
+    if prefilter_quality not in QUALITIES:
+        raise ValueError(
+            f"prefilter_quality must be one of {', '.join(QUALITIES)}, not {prefilter_quality!r}"
+        )
     if threads is not None and (
         isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
     ):
@@ -174,12 +187,13 @@ def denoise(
     pyoidn = _load_pyoidn()
     entry = _device(pyoidn, threads or default_threads())
     level = _OIDN_QUALITY[quality]
+    guide_level = _OIDN_QUALITY[prefilter_quality]
     output = np.empty_like(color)
     prefiltered = prefilter and bool(guides)
     with entry.lock:
         if prefiltered:
             for name, guide in guides.items():  # in place: the guides are this call's copies
-                _run_filter(pyoidn, entry, {name: guide, "output": guide}, {"quality": level})
+                _run_filter(pyoidn, entry, {name: guide, "output": guide}, {"quality": guide_level})
         images = {"color": color, **guides, "output": output}
         options = {"hdr": True, "cleanAux": prefiltered, "quality": level}
         _run_filter(pyoidn, entry, images, options)
