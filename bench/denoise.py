@@ -74,32 +74,38 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def render_frames(args: argparse.Namespace, width: int, height: int) -> dict[str, np.ndarray]:
-    """The beauty and its albedo and normal AOVs (one render, ``render.aovs``) of the scene at
-    ``width`` x ``height``; with ``--render-spp``, also the seconds of a render at that spp with
-    AOVs, and of the same render without them (in turns), for the denoiser's share."""
+def frame_renderer(name: str, width: int, height: int, threads: int):
+    """``render(spp, aovs)``: scene ``name`` (a folder of ``scenes/``) rendered whole at
+    ``width`` x ``height`` (``tracer.render.render_pixels``), and ``guides(out)``: the beauty,
+    albedo and normal of a render with AOVs, (H, W, 3) each."""
     from tracer.compiled.scene import compile_scene
     from tracer.integrators.aov import aov_layers
     from tracer.render import render_pixels
     from tracer.scene.format import override
     from tracer.scene.loader import load_scene
 
-    scene = compile_scene(load_scene(REPO_ROOT / "scenes" / args.scene / "scene.json"))
+    scene = compile_scene(load_scene(REPO_ROOT / "scenes" / name / "scene.json"))
     camera = override(scene.camera, width=width, height=height)
-    pixels = width * height
 
     def render(spp: int, aovs: bool):
         settings = override(scene.render, spp=spp, aovs=aovs)
-        return render_pixels(scene, 0, pixels, camera, settings, threads=args.threads)
+        return render_pixels(scene, 0, width * height, camera, settings, threads=threads)
 
+    def guides(out) -> dict[str, np.ndarray]:
+        layers = aov_layers(out.aov.reshape(height, width, -1))
+        beauty = out.rgb.reshape(height, width, 3)
+        return {"path": beauty, "albedo": layers["albedo"], "normal": layers["normal"]}
+
+    return render, guides
+
+
+def render_frames(args: argparse.Namespace, width: int, height: int) -> dict[str, np.ndarray]:
+    """The beauty and its albedo and normal AOVs (one render, ``render.aovs``) of the scene at
+    ``width`` x ``height``; with ``--render-spp``, also the seconds of a render at that spp with
+    AOVs, and of the same render without them (in turns), for the denoiser's share."""
+    render, guides = frame_renderer(args.scene, width, height, args.threads)
     start = time.perf_counter()
-    out = render(args.spp, True)
-    layers = aov_layers(out.aov.reshape(height, width, -1))
-    frames = {
-        "path": out.rgb.reshape(height, width, 3),
-        "albedo": layers["albedo"],
-        "normal": layers["normal"],
-    }
+    frames = guides(render(args.spp, True))
     console.print(
         f"[dim]{width}x{height} at {args.spp} spp with AOVs rendered in "
         f"{time.perf_counter() - start:.2f} s (kernel compilation included where the cache "

@@ -14,7 +14,6 @@ import itertools
 
 import numpy as np
 from common import (
-    REPO_ROOT,
     Contender,
     interleaved,
     machine_info,
@@ -23,6 +22,7 @@ from common import (
     usable_cores,
     write_results,
 )
+from denoise import frame_renderer
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -48,29 +48,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def frames(name: str, args: argparse.Namespace) -> dict[str, np.ndarray]:
-    """The beauty, its albedo and normal AOVs, and the reference of scene ``name``."""
-    from tracer.compiled.scene import compile_scene
-    from tracer.integrators.aov import aov_layers
-    from tracer.render import render_pixels
-    from tracer.scene.format import override
-    from tracer.scene.loader import load_scene
-
-    scene = compile_scene(load_scene(REPO_ROOT / "scenes" / name / "scene.json"))
-    w, h = args.width, args.height
-    camera = override(scene.camera, width=w, height=h)
-
-    def render(spp: int, aovs: bool):
-        settings = override(scene.render, spp=spp, aovs=aovs)
-        return render_pixels(scene, 0, w * h, camera, settings, threads=args.threads)
-
-    out = render(args.spp, True)
-    layers = aov_layers(out.aov.reshape(h, w, -1))
-    return {
-        "beauty": out.rgb.reshape(h, w, 3),
-        "albedo": layers["albedo"],
-        "normal": layers["normal"],
-        "reference": render(args.reference_spp, False).rgb.reshape(h, w, 3),
-    }
+    """The beauty (``path``), its albedo and normal AOVs, and the reference of scene ``name``."""
+    render, guides = frame_renderer(name, args.width, args.height, args.threads)
+    reference = render(args.reference_spp, False).rgb.reshape(args.height, args.width, 3)
+    return {**guides(render(args.spp, True)), "reference": reference}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -88,7 +69,7 @@ def main(argv: list[str] | None = None) -> None:
 
             def run(_round, f=f, quality=quality, guide_quality=guide_quality):
                 return denoise(
-                    f["beauty"],
+                    f["path"],
                     f["albedo"],
                     f["normal"],
                     quality=quality,
@@ -100,7 +81,7 @@ def main(argv: list[str] | None = None) -> None:
             contenders[key] = Contender(run)
             outputs[key] = run(-1).image  # a warm-up, and the image (the same every call)
         series = interleaved(contenders, dict.fromkeys(contenders, 1.0), args.repeats)
-        noisy = rel_mse(f["beauty"], f["reference"])
+        noisy = rel_mse(f["path"], f["reference"])
         for key, measured in series.items():
             quality, guide_quality = key.split("/")
             error = rel_mse(outputs[key], f["reference"])

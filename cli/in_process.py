@@ -40,7 +40,9 @@ def render_to_file(
     warm_up(scene, settings, quiet)
     samples_total = camera.width * camera.height * settings.spp
     start = time.perf_counter()
-    aov = np.empty((camera.height, camera.width, CHANNELS), np.float32)
+    aov = None
+    if settings.renders_aovs:
+        aov = np.empty((camera.height, camera.width, CHANNELS), np.float32)
     with progress_bar(quiet, "{task.completed}/{task.total} lines") as progress:
         task = progress.add_task(label, total=camera.height)
         rays = []
@@ -55,7 +57,6 @@ def render_to_file(
     seconds = time.perf_counter() - start
     plan = plan_report(effect_plan(scene, settings), settings)
     metadata = image_metadata(camera, settings, plan, seconds, sum(rays), "in-process")
-    aov = aov if settings.renders_aovs else None
     for path in outputs:
         info = write_output(path, image, metadata, aov, settings, layer)
     if not quiet:

@@ -17,11 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from tracer.compiled.scene import CompiledScene
-from tracer.errors import SceneError
 from tracer.integrators import flags
 from tracer.integrators.aov import world_positions
 from tracer.integrators.effects import EffectPlan, effect_plan
-from tracer.integrators.kernel_choice import choose_kernel, chosen_kernel
+from tracer.integrators.kernel_choice import chosen_kernel
 from tracer.integrators.pixels import pixel_run, trace_run
 from tracer.integrators.registry import REGISTRY
 from tracer.io.heatmap import cost_heatmap
@@ -137,8 +136,6 @@ def render_pixels(
     integrator = REGISTRY[settings.integrator]
     start = time.perf_counter()
     aovs = settings.renders_aovs
-    if aovs and choose_kernel(settings).name != "single":  # settings built without validation
-        raise SceneError("AOVs come from the single-ray kernel only (render.kernel)")
     run_flags = plan.flags | (flags.AOVS if aovs else 0)
     run = pixel_run(scene, camera, settings, p0, p1, frame, sample_start, run_flags)
     kernel = chosen_kernel(settings, plan.flags)

@@ -33,10 +33,13 @@ class KernelChoice:
 
 def choose_kernel(settings: fmt.RenderSettings) -> KernelChoice:
     """The kernel for ``settings.integrator``: ``settings.kernel`` when the integrator has a
-    choice, else the measured rule (today the single-ray kernel, whatever the plan)."""
+    choice and the render records no AOVs, else the measured rule (today the single-ray
+    kernel, whatever the plan)."""
     kernels = REGISTRY[settings.integrator].kernels
     if len(kernels) == 1:
         return KernelChoice(SINGLE, f"the {settings.integrator} integrator has one kernel")
+    if settings.renders_aovs:  # the format refuses an explicit stream kernel with them
+        return KernelChoice(SINGLE, "AOVs come from the single-ray kernel only")
     if settings.kernel != "auto":
         return KernelChoice(settings.kernel, "set in render.kernel")
     return KernelChoice(SINGLE, MEASURED)
