@@ -70,6 +70,7 @@ def job_state(state: SceneState, request: dict) -> SceneState:
         kernel=request.get("kernel"),
         aovs=request.get("aovs"),
         denoise=request.get("denoise"),
+        denoise_prefilter=request.get("denoise_prefilter"),
     )
 
 

@@ -4,6 +4,8 @@ frame, the streams that watch it and its timings."""
 import asyncio
 import collections
 import io
+import logging
+import threading
 import time
 
 import numpy as np
@@ -11,6 +13,8 @@ import numpy as np
 from api.scenes import SceneEntry
 from tracer.io.images import linear_to_srgb8
 from tracer.scene import format as fmt
+
+log = logging.getLogger("tilerender.api")
 
 SESSION_RENDER_GRACE = 10.0
 """Seconds a session keeps rendering after its last request when no stream is open."""
@@ -28,6 +32,8 @@ class LiveSession:
         self.loop = loop
         self.session = None
         self.camera: fmt.Camera | None = None
+        self.denoise = "off"
+        """The quality the session's frames are denoised at (``off``: not denoised)."""
         self.created = time.time()
         self.last_activity = time.monotonic()
         self.clients = 0
@@ -42,6 +48,14 @@ class LiveSession:
         self.latencies: collections.deque = collections.deque(maxlen=64)
         self.overheads: collections.deque = collections.deque(maxlen=64)
         self.encode_ms: collections.deque = collections.deque(maxlen=64)
+        self.denoise_ms: collections.deque = collections.deque(maxlen=64)
+        self.frames_dropped = 0
+        """Frames the encoder skipped because a newer one was waiting (denoising is slower
+        than rendering)."""
+        self.denoise_error: str | None = None
+        """The denoiser's last error (its frames are then shown as they are)."""
+        self._pending: tuple | None = None
+        self._pending_lock = threading.Lock()
         self.render_ms: collections.deque = collections.deque(maxlen=64)
         self.last_render_end: float | None = None
         self.frame_times: collections.deque = collections.deque(maxlen=32)
@@ -61,9 +75,12 @@ class LiveSession:
         event.set()
 
     def deliver(self, frame, encoder, loop, quality: int, shows_update: float | None) -> None:
-        """Encode a cluster session's ``frame`` on ``encoder`` (a thread pool, off the render
-        thread) and publish it to the watchers on ``loop``, recording the encode time, the
-        frame time and, for a frame that shows a camera update, its latency."""
+        """Hand a cluster session's ``frame`` to ``encoder`` (a one-thread pool, off the render
+        thread), which denoises it if its session asks (``InteractiveSession.denoised``),
+        encodes it and publishes it to the watchers on ``loop``, recording the times taken
+        and, for a frame that shows a camera update, its latency. At most one frame waits: a
+        newer one replaces it (and keeps its camera update's time), so a denoiser slower than
+        the renderer drops frames rather than falling behind."""
         meta = {
             "index": int(frame.index),
             "version": int(frame.version),
@@ -74,25 +91,61 @@ class LiveSession:
             "seconds": round(float(frame.seconds), 5),
             "samples_accumulated": int(frame.samples_accumulated),
         }
+        with self._pending_lock:
+            waiting = self._pending
+            if waiting is not None:
+                self.frames_dropped += 1
+                shows_update = waiting[2] if shows_update is None else shows_update
+            self._pending = (frame, meta, shows_update)
+        if waiting is None:
+            encoder.submit(self._encode_pending, encoder, loop, quality)
+
+    def _encode_pending(self, encoder, loop, quality: int) -> None:
+        """On the encoder: denoise, encode and publish the waiting frame."""
+        with self._pending_lock:
+            pending, self._pending = self._pending, None
+        if pending is None:
+            return
+        frame, meta, shows_update = pending
         image = frame.image
+        meta["denoise"] = None
+        if getattr(frame, "denoise", "off") != "off":
+            image, meta["denoise"] = self._denoised(frame)
+        e0 = time.perf_counter()
+        jpeg = encode_jpeg(image, quality)
+        self.encode_ms.append(round(1000 * (time.perf_counter() - e0), 3))
+        if loop is None or loop.is_closed():
+            return
 
-        def encode() -> None:
-            e0 = time.perf_counter()
-            jpeg = encode_jpeg(image, quality)
-            self.encode_ms.append(round(1000 * (time.perf_counter() - e0), 3))
-            if loop is None or loop.is_closed():
-                return
+        def publish() -> None:
+            self.publish(jpeg, meta)
+            now = time.perf_counter()
+            self.frame_times.append(now)
+            if shows_update is not None:
+                self.latencies.append(round(1000 * (now - shows_update), 3))
 
-            def publish() -> None:
-                self.publish(jpeg, meta)
-                now = time.perf_counter()
-                self.frame_times.append(now)
-                if shows_update is not None:
-                    self.latencies.append(round(1000 * (now - shows_update), 3))
+        loop.call_soon_threadsafe(publish)
 
-            loop.call_soon_threadsafe(publish)
+    def _denoised(self, frame) -> tuple:
+        """``(image, report)``: the frame denoised by its session, or, if the denoiser fails,
+        the frame as it is and the error (logged once per session)."""
+        from tracer.post.denoise import DenoiseFailed, DenoiserUnavailable
 
-        encoder.submit(encode)
+        try:
+            done = type(self.session).denoised(frame)
+        except (DenoiserUnavailable, DenoiseFailed, ValueError) as exc:
+            if self.denoise_error is None:
+                log.warning("session %s cannot denoise: %s", self.id, exc)
+            self.denoise_error = str(exc)
+            return frame.image, {"quality": frame.denoise, "error": str(exc)}
+        self.denoise_ms.append(round(1000 * done.seconds, 3))
+        report = {
+            "quality": done.quality,
+            "guides": list(done.guides),
+            "prefiltered": done.prefiltered,
+            "seconds": round(done.seconds, 4),
+        }
+        return done.image, report
 
     def wake(self) -> None:
         """Runs on the event loop: wake the streams (the session closed)."""
@@ -130,6 +183,9 @@ class LiveSession:
             if not self.overheads or not self.render_ms
             else round(100 * float(np.mean(self.overheads)) / float(np.mean(self.render_ms)), 3),
             "encode_ms": mean(self.encode_ms),
+            "denoise_ms": mean(self.denoise_ms),
+            "frames_dropped": self.frames_dropped,
+            "denoise_error": self.denoise_error,
         }
 
 

@@ -4,7 +4,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
-from tracer.integrators.names import DENOISE, KERNELS
+from tracer.integrators.names import DENOISE, DENOISE_PREFILTER, KERNELS
 from tracer.scene import format as fmt
 
 MAX_CAMERA_PATH = 10_000
@@ -206,6 +206,12 @@ class JobCreate(Strict):
         "(the scene's render.denoise by default); the frame's default layer is then the "
         "denoised one, the beauty stays as ?layer=beauty",
     )
+    denoise_prefilter: Literal[DENOISE_PREFILTER] | None = Field(
+        default=None,
+        description="prefilter the denoiser's albedo and normal guides: auto where they are "
+        "noisy (a lens aperture or a textured material), on or off (the scene's "
+        "render.denoise_prefilter by default)",
+    )
     frames: list[Annotated[int, Field(ge=0, lt=MAX_JOB_FRAMES)]] | None = Field(
         default=None,
         max_length=MAX_JOB_FRAMES,
@@ -298,6 +304,18 @@ class SessionCreate(Strict):
     target_fps: float = Field(default=10.0, gt=0, le=120)
     min_blend: float = Field(default=0.1, gt=0, le=1)
     camera: CameraPose | None = None
+    denoise: Literal[DENOISE] = Field(
+        default="off",
+        description="denoise the shown image (the converged blend, guided by its albedo and "
+        "normal) with Open Image Denoise at this quality; PATCH the session to change it",
+    )
+
+
+class SessionUpdate(Strict):
+    denoise: Literal[DENOISE] = Field(
+        description="denoise the shown image at this quality from the next frame on (off: show "
+        "it as it is)"
+    )
 
 
 class SessionPublic(BaseModel):
@@ -305,6 +323,7 @@ class SessionPublic(BaseModel):
     scene_id: str
     width: int
     height: int
+    denoise: str
     camera: dict | None
     created: float
     stream_url: str

@@ -365,6 +365,8 @@ class RenderService:
                 coordinator, live.entry.graph, target_fps=target_fps, min_blend=min_blend
             )
             session.set_camera(camera)
+            if live.denoise != "off":
+                session.set_denoise(live.denoise)
             live.session = session
             self.sessions[live.id] = live
             self._gauge_sessions()

@@ -1,12 +1,14 @@
-"""What the quality of the guides' prefilters buys: error and seconds of the OIDN denoiser
-(``tracer.post.denoise``) for each quality of the beauty and of the prefilters.
+"""What prefiltering the guides buys: error and seconds of the OIDN denoiser
+(``tracer.post.denoise``) for each quality of the beauty, with the guides taken as they are
+(``off``) or prefiltered at each quality.
 
-Each scene (``--scenes``) is rendered at ``--size`` and ``--spp`` with its AOVs (the guides),
-and at ``--reference-spp`` without; then every (quality, prefilter quality) pair denoises the
+Each scene (``--scenes``) is rendered at ``--size`` and at each of ``--spp`` with its AOVs (the
+guides), and at ``--reference-spp`` without; then every (quality, prefilter) pair denoises the
 frame, in turns, for ``--repeats`` rounds. Reported: median seconds and the relative MSE
-against the reference (whose own noise is in it, the same for every pair). This is the
-measurement behind ``PREFILTER_QUALITY`` (``docs/denoising.md``, Guides and prefiltering).
-Writes ``bench/results/denoise_prefilter.json``.
+against the reference (whose own noise is in it, the same for every pair), and which prefilter
+``render.denoise_prefilter`` ``auto`` picks for the scene (``tracer.post.guides``). This is the
+measurement behind ``PREFILTER_QUALITY`` and the ``auto`` rule (``docs/denoising.md``, Guides
+and prefiltering). Writes ``bench/results/denoise_prefilter.json``.
 """
 
 import argparse
@@ -32,26 +34,47 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "--scenes", nargs="+", default=["textured", "cornell-spheres"], help="folders of scenes/"
+        "--scenes",
+        nargs="+",
+        default=["cornell-box", "cornell-spheres", "veach-mis", "textured"],
+        help="folders of scenes/",
     )
     parser.add_argument("--size", default="320x180", help="WxH of the frames")
-    parser.add_argument("--spp", type=int, default=4, help="samples per pixel of the frames")
+    parser.add_argument(
+        "--spp", type=int, nargs="+", default=[1, 4, 16], help="samples per pixel of the frames"
+    )
     parser.add_argument("--reference-spp", type=int, default=256, help="spp of the references")
     parser.add_argument("--repeats", type=int, default=3, help="timed rounds")
     parser.add_argument("--threads", type=int, default=usable_cores(), help="threads")
     args = parser.parse_args(argv)
     width, _, height = args.size.partition("x")
     args.width, args.height = int(width), int(height)
-    if min(args.spp, args.reference_spp, args.repeats, args.threads, args.width, args.height) < 1:
+    if min(*args.spp, args.reference_spp, args.repeats, args.threads, args.width, args.height) < 1:
         parser.error("sizes, spp, --repeats and --threads must be at least 1")
     return args
 
 
-def frames(name: str, args: argparse.Namespace) -> dict[str, np.ndarray]:
-    """The beauty (``path``), its albedo and normal AOVs, and the reference of scene ``name``."""
+PREFILTERS = ("off", "fast", "balanced", "high")
+"""The guides taken as they are, or prefiltered at a quality."""
+
+
+def frames(name: str, args: argparse.Namespace) -> tuple[np.ndarray, dict[int, dict]]:
+    """The reference of scene ``name``, and for each of ``--spp`` the beauty (``path``) and its
+    albedo and normal AOVs."""
     render, guides = frame_renderer(name, args.width, args.height, args.threads)
     reference = render(args.reference_spp, False).rgb.reshape(args.height, args.width, 3)
-    return {**guides(render(args.spp, True)), "reference": reference}
+    return reference, {spp: guides(render(spp, True)) for spp in args.spp}
+
+
+def auto_prefilters(name: str) -> bool:
+    """Whether ``render.denoise_prefilter`` ``auto`` prefilters scene ``name``'s guides."""
+    from denoise import REPO_ROOT
+
+    from tracer.post.guides import guides_are_noisy
+    from tracer.scene.loader import load_scene
+
+    state = load_scene(str(REPO_ROOT / "scenes" / name / "scene.json"))
+    return guides_are_noisy(state.materials.values(), state.camera)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -63,53 +86,59 @@ def main(argv: list[str] | None = None) -> None:
     print_machine(info)
     results, rows = [], []
     for name in args.scenes:
-        f = frames(name, args)
-        contenders, outputs = {}, {}
-        for quality, guide_quality in itertools.product(QUALITIES, QUALITIES):
+        reference, by_spp = frames(name, args)
+        auto = auto_prefilters(name)
+        for spp, f in by_spp.items():
+            contenders, outputs = {}, {}
+            for quality, prefilter in itertools.product(QUALITIES, PREFILTERS):
 
-            def run(_round, f=f, quality=quality, guide_quality=guide_quality):
-                return denoise(
-                    f["path"],
-                    f["albedo"],
-                    f["normal"],
-                    quality=quality,
-                    threads=args.threads,
-                    prefilter_quality=guide_quality,
-                )
+                def run(_round, f=f, quality=quality, prefilter=prefilter):
+                    return denoise(
+                        f["path"],
+                        f["albedo"],
+                        f["normal"],
+                        quality=quality,
+                        threads=args.threads,
+                        prefilter=prefilter != "off",
+                        prefilter_quality=None if prefilter == "off" else prefilter,
+                    )
 
-            key = f"{quality}/{guide_quality}"
-            contenders[key] = Contender(run)
-            outputs[key] = run(-1).image  # a warm-up, and the image (the same every call)
-        series = interleaved(contenders, dict.fromkeys(contenders, 1.0), args.repeats)
-        noisy = rel_mse(f["path"], f["reference"])
-        for key, measured in series.items():
-            quality, guide_quality = key.split("/")
-            error = rel_mse(outputs[key], f["reference"])
-            default = PREFILTER_QUALITY[quality] == guide_quality
-            results.append(
-                {
-                    "scene": name,
-                    "quality": quality,
-                    "prefilter_quality": guide_quality,
-                    "default": default,
-                    "median_seconds": measured.median_seconds,
-                    "rel_mse": error,
-                    "noisy_rel_mse": noisy,
-                }
-            )
-            rows.append(
-                (
-                    name,
-                    quality,
-                    guide_quality + (" (default)" if default else ""),
-                    f"{measured.median_seconds:.3f}",
-                    f"{error:.5f}",
+                key = f"{quality}/{prefilter}"
+                contenders[key] = Contender(run)
+                outputs[key] = run(-1).image  # a warm-up, and the image (the same every call)
+            series = interleaved(contenders, dict.fromkeys(contenders, 1.0), args.repeats)
+            noisy = rel_mse(f["path"], reference)
+            for key, measured in series.items():
+                quality, prefilter = key.split("/")
+                error = rel_mse(outputs[key], reference)
+                chosen = prefilter == (PREFILTER_QUALITY[quality] if auto else "off")
+                results.append(
+                    {
+                        "scene": name,
+                        "spp": spp,
+                        "quality": quality,
+                        "prefilter": prefilter,
+                        "auto": chosen,
+                        "median_seconds": measured.median_seconds,
+                        "rel_mse": error,
+                        "noisy_rel_mse": noisy,
+                    }
                 )
-            )
+                rows.append(
+                    (
+                        name,
+                        str(spp),
+                        quality,
+                        prefilter + (" (auto)" if chosen else ""),
+                        f"{measured.median_seconds:.3f}",
+                        f"{error:.5f}",
+                        f"{noisy:.4f}",
+                    )
+                )
     print_table(
-        f"OIDN guided by prefiltered AOVs, {args.size} at {args.spp} spp, {args.threads} threads, "
-        f"{args.repeats} rounds; relMSE against {args.reference_spp} spp",
-        ["scene", "quality", "prefilters", "median s", "relMSE"],
+        f"OIDN guided by the AOVs, as they are or prefiltered, {args.size}, {args.threads} "
+        f"threads, {args.repeats} rounds; relMSE against {args.reference_spp} spp",
+        ["scene", "spp", "quality", "prefilter", "median s", "relMSE", "raw relMSE"],
         rows,
     )
     write_results("denoise_prefilter", {"options": vars(args), "results": results}, info)

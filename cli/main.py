@@ -18,7 +18,13 @@ from collections.abc import Sequence
 
 from cli.errors import UsageError
 from tracer.errors import TilerenderError
-from tracer.integrators.names import DENOISE, INTEGRATORS, KERNELS, OUTPUT_LAYERS
+from tracer.integrators.names import (
+    DENOISE,
+    DENOISE_PREFILTER,
+    INTEGRATORS,
+    KERNELS,
+    OUTPUT_LAYERS,
+)
 
 EXIT_FAILED = 1
 EXIT_USAGE = 2
@@ -256,6 +262,12 @@ def add_layer_options(parser: argparse.ArgumentParser) -> None:
         "guided by the albedo and normal AOVs; the "
         "image shows the denoised layer, a .exr or .npz keeps the beauty beside it "
         "(docs/denoising.md)",
+    )
+    parser.add_argument(
+        "--denoise-prefilter",
+        choices=DENOISE_PREFILTER,
+        help="prefilter the denoiser's albedo and normal guides: auto (the default) where they "
+        "are noisy (a lens aperture or a textured material), on or off (docs/denoising.md)",
     )
     parser.add_argument(
         "--layer",

@@ -9,6 +9,7 @@ import pydantic
 from cluster.progressive import Goal
 from tracer.errors import SceneError, format_validation_error
 from tracer.kernel.threads import default_threads
+from tracer.post.guides import resolve_prefilter
 from tracer.scene import format as fmt
 from tracer.scene.model import SceneState
 
@@ -25,9 +26,11 @@ def with_overrides(
     kernel: str | None = None,
     aovs: bool | None = None,
     denoise: str | None = None,
+    denoise_prefilter: str | None = None,
 ) -> SceneState:
     """``state`` with its camera's size and its render settings overridden (None keeps the
-    scene's value); SceneError names a value a scene file could not hold either."""
+    scene's value), and ``denoise_prefilter`` ``auto`` resolved for its materials and camera
+    (``tracer.post.guides``); SceneError names a value a scene file could not hold either."""
     try:
         camera = fmt.override(state.camera, width=width, height=height)
         render = fmt.override(
@@ -39,9 +42,11 @@ def with_overrides(
             kernel=kernel,
             aovs=aovs,
             denoise=denoise,
+            denoise_prefilter=denoise_prefilter,
         )
     except pydantic.ValidationError as exc:
         raise SceneError(format_validation_error(exc)) from None
+    render = resolve_prefilter(render, state.materials.values(), camera)
     return dataclasses.replace(state, camera=camera, render=render)
 
 

@@ -15,6 +15,13 @@ every frame the spp for the next is ``spp * target / measured`` (smoothed, clamp
 ``[1, max_spp]``). Below 1 spp the resolution drops in halves (down to 1/4 of each side);
 above, it comes back first. A lower-resolution frame is upscaled (nearest) to the camera's size,
 so the displayed image keeps its size; changing the resolution restarts convergence.
+
+**Denoising** (:meth:`InteractiveSession.set_denoise`). With a quality other than ``off``, every
+frame also renders the albedo and normal AOVs (where the integrator has them), blended into the
+denoiser's guides by the same factor as the beauty, and :meth:`InteractiveSession.denoised`
+denoises the converged blend, not each frame's fresh samples: as the blend converges, so does
+what the denoiser sees, and the image stops flickering. The caller chooses where that runs (the
+service: on its encoder thread, beside the next frame's rendering).
 """
 
 import math
@@ -27,7 +34,10 @@ import numpy as np
 from cluster.coordinator import Coordinator
 from cluster.frame import Frame
 from cluster.scene_graph import SceneGraph
+from tracer.integrators.aov import ALBEDO, NORMAL
+from tracer.integrators.names import AOV_INTEGRATORS, DENOISE
 from tracer.maths import portable
+from tracer.post.guides import guides_are_noisy
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
@@ -134,6 +144,13 @@ class SessionFrame:
     samples_accumulated: int
     """Effective samples per pixel behind the displayed image, ``spp / blend`` (exact for a
     running mean: n frames of spp samples)."""
+    denoise: str = "off"
+    """The quality the image is to be denoised at (``off``: shown as it is)."""
+    guides: np.ndarray | None = None
+    """float32 (H, W, 6): the blended albedo and normal behind ``image``, when denoising with
+    guides (the integrator records AOVs)."""
+    prefilter: bool = False
+    """Whether the guides are noisy enough to prefilter (``tracer.post.guides``)."""
 
 
 class InteractiveSession:
@@ -159,6 +176,8 @@ class InteractiveSession:
         self._convergence = Convergence(min_blend)
         self._scaler = WorkloadScaler(1.0 / target_fps, max_spp=max_spp)
         self._image: np.ndarray | None = None
+        self._guides: np.ndarray | None = None
+        self._denoise = "off"
         self.last_frame: Frame | None = None
         """The coordinator's frame behind the latest session frame (tracers, idle, timings)."""
         self._index = 0
@@ -176,6 +195,18 @@ class InteractiveSession:
         with self._lock:
             return self._camera
 
+    def set_denoise(self, quality: str) -> None:
+        """Denoise the shown image from the next frame on at ``quality`` (``off``: do not)."""
+        if quality not in DENOISE:
+            raise ValueError(f"denoise must be one of {', '.join(DENOISE)}, not {quality!r}")
+        with self._lock:
+            self._denoise = quality
+
+    @property
+    def denoise(self) -> str:
+        with self._lock:
+            return self._denoise
+
     def render_next(self) -> SessionFrame:
         """Render one frame, blend it in and return the displayed image."""
         if self.closed:
@@ -186,10 +217,15 @@ class InteractiveSession:
         width = max(1, round(camera.width * scale))
         height = max(1, round(camera.height * scale))
         small = camera.model_copy(update={"width": width, "height": height})
-        # Interactive frames show the beauty only: no AOVs, no denoising per frame.
-        settings = self.graph.state.render.model_copy(
-            update={"spp": spp, "aovs": False, "denoise": "off"}
-        )
+        state = self.graph.state
+        quality = self.denoise
+        guided = quality != "off" and state.render.integrator in AOV_INTEGRATORS
+        # The frame's own layers are never denoised: the blend is (``denoised``). Guides need
+        # the single-ray kernel, which ``auto`` picks for them (the same image either way).
+        changes = {"spp": spp, "aovs": guided, "denoise": "off"}
+        if guided:
+            changes["kernel"] = "auto"
+        settings = state.render.model_copy(update=changes)
         motion = (
             0.0 if self._rendered_camera is None else camera_motion(self._rendered_camera, small)
         )
@@ -205,11 +241,15 @@ class InteractiveSession:
         if self._image is None or motion == math.inf:
             self._convergence.reset()
         blend = self._convergence.next_blend(motion, scene_changed)
-        if blend >= 1.0 or self._image is None:
-            self._image = full.copy()
+        restart = blend >= 1.0 or self._image is None
+        self._image = _blended(self._image, full, blend, restart)
+        if guided:
+            aov = _upscale(frame.aov, camera.height, camera.width)
+            albedo, normal = aov[..., ALBEDO : ALBEDO + 3], aov[..., NORMAL : NORMAL + 3]
+            fresh = np.concatenate([albedo, normal], axis=2)
+            self._guides = _blended(self._guides, fresh, blend, restart or self._guides is None)
         else:
-            self._image *= np.float32(1.0 - blend)
-            self._image += np.float32(blend) * full
+            self._guides = None
         self._rendered_camera = small
         self._version = frame.version
         self._scaler.update(seconds)
@@ -224,14 +264,38 @@ class InteractiveSession:
             blend=blend,
             seconds=seconds,
             samples_accumulated=round(spp / blend),
+            denoise=quality,
+            guides=None if self._guides is None else self._guides.copy(),
+            prefilter=guided and guides_are_noisy(state.materials.values(), camera),
         )
         self._index += 1
         self._last = result
         return result
 
+    @staticmethod
+    def denoised(frame: SessionFrame, threads: int | None = None):
+        """``frame``'s image denoised at its quality (``tracer.post.denoise.Denoised``), guided
+        by its blended guides where it has them; None when its quality is ``off``. Raises the
+        denoiser's errors (``DenoiserUnavailable``, ``DenoiseFailed``)."""
+        if frame.denoise == "off":
+            return None
+        from tracer.post.denoise import denoise
+
+        albedo = normal = None
+        if frame.guides is not None:
+            albedo, normal = frame.guides[..., :3], frame.guides[..., 3:]
+        return denoise(
+            frame.image,
+            albedo,
+            normal,
+            quality=frame.denoise,
+            threads=threads,
+            prefilter=frame.prefilter,
+        )
+
     def stats(self) -> dict:
         """fps (smoothed), spp and resolution scale of the next frame, the last blend factor,
-        frames rendered."""
+        frames rendered, the denoiser's quality."""
         last = self._last
         return {
             "fps": self._fps,
@@ -240,6 +304,7 @@ class InteractiveSession:
             "blend": None if last is None else last.blend,
             "frames": self._index,
             "samples_accumulated": 0 if last is None else last.samples_accumulated,
+            "denoise": self.denoise,
         }
 
     def close(self) -> None:
@@ -247,8 +312,20 @@ class InteractiveSession:
         the coordinator's frame behind it), even while something still holds the session."""
         self.closed = True
         self._image = None
+        self._guides = None
         self._last = None
         self.last_frame = None
+
+
+def _blended(
+    shown: np.ndarray | None, fresh: np.ndarray, blend: float, restart: bool
+) -> np.ndarray:
+    """``shown (1 - blend) + fresh blend`` in place (a copy of ``fresh`` on ``restart``)."""
+    if restart:
+        return fresh.copy()
+    shown *= np.float32(1.0 - blend)
+    shown += np.float32(blend) * fresh
+    return shown
 
 
 def _upscale(image: np.ndarray, height: int, width: int) -> np.ndarray:

@@ -15,9 +15,17 @@ from fastapi.responses import StreamingResponse
 from api.deps import Ctx, ThreadedBodyRoute
 from api.errors import ApiError
 from api.live_session import LiveSession, set_camera_now
-from api.models import CameraPose, SessionCreate, SessionPublic, SessionsPublic, errors
+from api.models import (
+    CameraPose,
+    SessionCreate,
+    SessionPublic,
+    SessionsPublic,
+    SessionUpdate,
+    errors,
+)
 from api.scenes import new_id
 from tracer.errors import format_validation_error
+from tracer.post.denoise import DenoiserUnavailable, require_denoiser
 from tracer.scene import format as fmt
 
 router = APIRouter(prefix="/sessions", tags=["sessions"], route_class=ThreadedBodyRoute)
@@ -32,6 +40,7 @@ def _public(live: LiveSession) -> SessionPublic:
         scene_id=live.scene_id,
         width=live.width,
         height=live.height,
+        denoise=live.denoise,
         camera=None if live.camera is None else live.camera.model_dump(),
         created=live.created,
         stream_url=f"/v1/sessions/{live.id}/stream",
@@ -45,6 +54,15 @@ def _live(ctx: Ctx, session_id: str) -> LiveSession:
     if live is None or live.closed:
         raise ApiError(404, f"no session {session_id!r} (closed or expired?)", "not_found")
     return live
+
+
+def _check_denoiser(quality: str) -> None:
+    """A 503 now when the session is to denoise and this server cannot."""
+    if quality != "off":
+        try:
+            require_denoiser()
+        except DenoiserUnavailable as exc:
+            raise ApiError(503, f"this server cannot denoise: {exc}", "unavailable") from None
 
 
 def _example_size(pixels: int) -> str:
@@ -85,6 +103,7 @@ async def open_session(body: SessionCreate, ctx: Ctx, response: Response) -> Ses
         )
     if not ctx.service.ready:
         raise ApiError(503, ctx.service.error or "the cluster is starting", "unavailable")
+    _check_denoiser(body.denoise)
     camera = _camera(entry.graph.state.camera, body.camera, width, height)
     try:
         ctx.service.session_factory()
@@ -96,6 +115,7 @@ async def open_session(body: SessionCreate, ctx: Ctx, response: Response) -> Ses
         ) from None
     live = LiveSession(new_id("v"), entry, width, height, asyncio.get_running_loop())
     live.camera = camera
+    live.denoise = body.denoise
     try:
         await ctx.service.call_async(
             ctx.service.open_session(live, camera, body.target_fps, body.min_blend),
@@ -128,6 +148,17 @@ async def close_session(session_id: str, ctx: Ctx) -> Response:
     _live(ctx, session_id)
     ctx.service.close_session(session_id)
     return Response(status_code=204)
+
+
+@router.patch("/{session_id}", response_model=SessionPublic, responses=errors(503))
+async def update_session(session_id: str, body: SessionUpdate, ctx: Ctx) -> SessionPublic:
+    """Change how the session shows its frames: ``denoise`` (the viewer's toggle)."""
+    live = _live(ctx, session_id)
+    _check_denoiser(body.denoise)
+    live.denoise = body.denoise
+    live.session.set_denoise(body.denoise)
+    live.touch()
+    return _public(live)
 
 
 @router.put("/{session_id}/camera", response_model=SessionPublic, responses=errors(400))

@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
         kernel=args.kernel,
         aovs=args.aov,
         denoise=args.denoise,
+        denoise_prefilter=args.denoise_prefilter,
     )
     camera, settings = state.camera, state.render
     check_layer_choice(args.layer, settings)

@@ -201,3 +201,48 @@ def test_closing_a_session_lets_go_of_its_image_buffers(client):
     gc.collect()
     assert [ref() is None for ref in refs] == [True, True, True]
     assert live.jpeg is None and live.session.closed
+
+
+def test_a_session_denoises_its_stream_on_request(client, monkeypatch):
+    """A session opened with ``denoise`` streams denoised frames and reports the denoiser's
+    report with each; PATCH turns it off and on; a bad quality is a 422 and a missing denoiser
+    a 503, both leaving the session as it was."""
+    from tracer.post import denoise as denoise_module
+
+    scene = upload_tiny(client)
+    session = open_session(client, scene["id"], denoise="fast")
+    sid = session["id"]
+    assert session["denoise"] == "fast"
+    seq, last = 0, None
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:  # the first frames may be published before the stats
+        _, seq, _ = next_frame(client, sid, seq)
+        last = client.get(f"/v1/sessions/{sid}").json()["stats"]
+        if last["last_frame"].get("denoise"):
+            break
+    report = last["last_frame"]["denoise"]
+    assert report["quality"] == "fast" and report["guides"] == ["albedo", "normal"]
+    assert report["prefiltered"] is False and report["seconds"] > 0
+    assert last["denoise"] == "fast" and last["denoise_ms"] > 0
+
+    assert client.patch(f"/v1/sessions/{sid}", json={"denoise": "sharp"}).status_code == 422
+
+    def unavailable():
+        raise denoise_module.DenoiserUnavailable("no pyoidn here")
+
+    with monkeypatch.context() as m:
+        m.setattr("api.routes.sessions.require_denoiser", unavailable)
+        r = client.patch(f"/v1/sessions/{sid}", json={"denoise": "high"})
+        assert r.status_code == 503 and "no pyoidn here" in r.json()["error"]["message"], r.text
+    assert client.get(f"/v1/sessions/{sid}").json()["denoise"] == "fast"
+
+    r = client.patch(f"/v1/sessions/{sid}", json={"denoise": "off"})
+    assert r.status_code == 200 and r.json()["denoise"] == "off"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        _, seq, _ = next_frame(client, sid, seq)
+        if client.get(f"/v1/sessions/{sid}").json()["stats"]["last_frame"]["denoise"] is None:
+            break
+    else:
+        raise AssertionError("the stream still shows denoised frames")
+    assert client.delete(f"/v1/sessions/{sid}").status_code == 204

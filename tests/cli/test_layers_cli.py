@@ -126,3 +126,30 @@ def test_no_aov_and_denoise_off_override_the_scene(capsys, tmp_path):
         code, _, err = run(capsys, "render", scene, "-o", out, *SIZE, *extra)
         assert code == 0, err
         assert len(read_layers(out)[0]) == names
+
+
+def test_the_guides_are_prefiltered_where_they_are_noisy(capsys, tmp_path, tiny_scene_file):
+    """--denoise-prefilter auto (the default) takes an untextured pinhole scene's guides as they
+    are, on prefilters them; the metadata says which, and only the denoised layer changes."""
+    denoised = {}
+    for choice in ("auto", "on", "off"):
+        out = tmp_path / f"{choice}.npz"
+        code, _, err = run(
+            capsys,
+            "render",
+            tiny_scene_file,
+            "-o",
+            out,
+            *SIZE,
+            "--denoise",
+            "fast",
+            "--denoise-prefilter",
+            choice,
+        )
+        assert code == 0, err
+        layers, metadata = read_layers(out)
+        assert metadata["denoise"]["prefiltered"] is (choice == "on"), choice
+        assert metadata["render"]["denoise_prefilter"] == ("off" if choice == "auto" else choice)
+        denoised[choice] = layers["denoised"]
+    assert np.array_equal(denoised["auto"], denoised["off"])
+    assert not np.array_equal(denoised["on"], denoised["off"])

@@ -132,3 +132,42 @@ def test_a_session_converges_to_the_mean_of_its_frames(coordinator):
     session.close()
     with pytest.raises(RuntimeError, match="closed"):
         session.render_next()
+
+
+def test_a_denoised_session_blends_its_guides_and_denoises_the_blend(coordinator):
+    """With denoising on, the shown beauty is bit for bit the plain session's, the guides are
+    the running mean of the frames' albedo and normal AOVs, and ``denoised`` denoises the blend;
+    turning it off drops the guides."""
+    from tracer.render import render_pixels
+
+    graph = coordinator.graph
+    plain = InteractiveSession(coordinator, graph, target_fps=1e-3, max_spp=1)
+    session = InteractiveSession(coordinator, graph, target_fps=1e-3, max_spp=1)
+    with pytest.raises(ValueError, match="denoise must be one of"):
+        session.set_denoise("sharp")
+    session.set_denoise("fast")
+    frames = [session.render_next() for _ in range(3)]
+    plain_frames = [plain.render_next() for _ in range(3)]
+    assert all(np.array_equal(a.image, b.image) for a, b in zip(frames, plain_frames, strict=True))
+    scene = compile_scene(graph.state)
+    settings = graph.state.render.model_copy(update={"spp": 1, "aovs": True})
+    pixels = CAMERA.width * CAMERA.height
+    aovs = [
+        render_pixels(scene, 0, pixels, CAMERA, settings, frame=k).aov.reshape(
+            CAMERA.height, CAMERA.width, -1
+        )
+        for k in range(3)
+    ]
+    mean = np.mean(aovs, axis=0)
+    expected = np.concatenate([mean[..., 0:3], mean[..., 3:6]], axis=2)
+    last = frames[-1]
+    assert last.denoise == "fast" and last.guides.shape == (CAMERA.height, CAMERA.width, 6)
+    np.testing.assert_allclose(last.guides, expected, rtol=1e-5, atol=1e-6)
+    assert last.prefilter is False  # the studio scene has no texture and no lens
+    done = InteractiveSession.denoised(last)
+    assert done.guides == ("albedo", "normal") and done.image.shape == last.image.shape
+    assert not np.array_equal(done.image, last.image)
+    assert session.stats()["denoise"] == "fast"
+    session.set_denoise("off")
+    off = session.render_next()
+    assert off.guides is None and InteractiveSession.denoised(off) is None

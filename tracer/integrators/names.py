@@ -18,6 +18,10 @@ DENOISE = ("off", "fast", "balanced", "high")
 """``render.denoise``'s choices: off, or an Open Image Denoise quality
 (``tracer.post.denoise``)."""
 
+DENOISE_PREFILTER = ("auto", "on", "off")
+"""``render.denoise_prefilter``'s choices: prefilter the denoiser's guides where they are noisy
+(``tracer.post.guides``), always, or never."""
+
 OUTPUT_LAYERS = ("beauty", "denoised", "albedo", "normal", "depth", "position", "alpha")
 """A frame's layers (``tracer.post.frame_layers``), in the order files hold them: the beauty,
 the denoised beauty and the AOVs (``tracer.integrators.aov``)."""

@@ -28,8 +28,9 @@ def frame_layers(
 
     The AOV layers are kept when ``settings.aovs`` asks for them; else they only guide the
     denoiser. When ``settings.denoise`` asks for the denoised layer, the albedo and normal
-    guide it where the frame has them (prefiltered: they are as noisy as the samples that made
-    them), and the metadata is ``{"denoise": {...}}`` (its quality, guides and seconds); else
+    guide it where the frame has them, prefiltered unless ``settings.denoise_prefilter`` is
+    ``off`` (``auto`` left unresolved counts as ``on``: ``tracer.post.guides`` resolves it), and
+    the metadata is ``{"denoise": {...}}`` (its quality, guides, prefiltering and seconds); else
     ``{}``."""
     layers = {"beauty": rgb}
     aovs = aov_layers(aov) if aov is not None else {}
@@ -39,7 +40,14 @@ def frame_layers(
 
     albedo, normal = aovs.get("albedo"), aovs.get("normal")
     try:
-        done = denoise(rgb, albedo, normal, quality=settings.denoise, threads=threads)
+        done = denoise(
+            rgb,
+            albedo,
+            normal,
+            quality=settings.denoise,
+            threads=threads,
+            prefilter=settings.denoise_prefilter != "off",
+        )
     except ValueError as exc:  # a frame OIDN cannot take (the renderer's bug, not the user's)
         raise DenoiseFailed(f"the frame cannot be denoised: {exc}") from None
     layers["denoised"] = done.image

@@ -11,7 +11,13 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from tracer import config
-from tracer.integrators.names import AOV_INTEGRATORS, DENOISE, INTEGRATORS, KERNELS
+from tracer.integrators.names import (
+    AOV_INTEGRATORS,
+    DENOISE,
+    DENOISE_PREFILTER,
+    INTEGRATORS,
+    KERNELS,
+)
 from tracer.maths import portable
 from tracer.scene.format_animation import (
     MAX_FRAMES,
@@ -288,6 +294,12 @@ class RenderSettings(Strict):
         description="Denoise the assembled frame with Open Image Denoise at this quality "
         "(fast, balanced, high), guided by the albedo and normal AOVs where the integrator "
         "gives them; the beauty layer is kept (docs/denoising.md)",
+    )
+    denoise_prefilter: Literal[DENOISE_PREFILTER] = Field(
+        default="auto",
+        description="Prefilter the denoiser's albedo and normal guides before the beauty is "
+        "denoised (OIDN's recipe for noisy guides): auto where they are noisy (a lens aperture "
+        "or a textured material), on, or off (docs/denoising.md)",
     )
     ao_samples: int = Field(
         default=4, ge=1, le=1024, description="Ambient occlusion rays per camera sample"
