@@ -10,7 +10,10 @@ this process, and every image is compared with the scene's one reference
    shared machine hit them alike). After each wave the mean so far is measured: relative MSE,
    RMSE, PSNR, SSIM and FLIP (``cli.accuracy_metrics.measure``), against the seconds spent,
    the rays traced (camera, continuation, shadow and occlusion rays; :func:`render_counted`)
-   and the kernel's work (BVH node visits plus triangle tests).
+   and the kernel's work (BVH node visits plus triangle tests). A denoised configuration
+   renders nothing of its own: after each wave it denoises its source's mean so far (which
+   records the albedo and normal AOVs), and its seconds are the source's plus that one
+   denoising's (a render denoises once, at the end).
 2. **Effect costs** after Reiter's eq. 5.1 (:func:`effect_costs`).
 3. **Time to quality**: seconds to reach a relative MSE (``cli.accuracy_metrics.time_to``).
 4. **Calibration** of the online error estimate against the true error (:func:`calibration`).
@@ -44,6 +47,7 @@ from tracer.accuracy.error_estimate import (
 )
 from tracer.accuracy.spot_check import SpotCheckLedger, render_spot_checks
 from tracer.compiled.scene import CompiledScene, compile_scene
+from tracer.integrators.aov import CHANNELS, aov_layers
 from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.integrators.flags import (
     EFFECTS,
@@ -54,6 +58,7 @@ from tracer.integrators.flags import (
     SHADOWS,
 )
 from tracer.kernel.threads import default_threads
+from tracer.post.guides import guides_are_noisy
 from tracer.render import render_image
 from tracer.scene import format as fmt
 from tracer.scene.loader import load_scene
@@ -63,6 +68,10 @@ DEFAULT_CACHE = REPO_ROOT / "bench" / "results" / "accuracy-cache"
 STRIP_SPP = (1, 4, 16, 64, 256)
 """Sample counts of the default configuration shown beside the reference in image strips."""
 DEFAULT_CONFIG = "path"
+AOV_CONFIG = "path-aov"
+"""The default configuration recording the AOVs: the denoised configurations' source."""
+DENOISED_STRIP = "path-oidn-high"
+"""The denoised configuration whose images the strips show under the default's."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +116,9 @@ class Config:
     """Effect flags removed from the scene's plan (``tracer.integrators.flags``)."""
     add: int = 0
     """Kernel switches added to the plan (``tracer.integrators.flags.NO_MIS``)."""
+    denoise: str = "off"
+    """An OIDN quality: the configuration denoises the images of ``source`` (renders none)."""
+    source: str | None = None
 
     def settings(self, base: fmt.RenderSettings) -> fmt.RenderSettings:
         return fmt.override(base, **self.changes)
@@ -128,7 +140,8 @@ def configurations(base: fmt.RenderSettings) -> list[Config]:
     """The sweep's configurations around the scene's own settings ``base`` (the ``path``
     configuration): path tracing at depths 1 to 16, without Russian roulette, with every effect
     (no plan), with light samples but no MIS, with BSDF sampling only (no light samples, so no
-    MIS); direct light; Whitted; ambient occlusion."""
+    MIS); direct light; Whitted; ambient occlusion; and ``path`` recording its AOVs, denoised
+    at OIDN's ``fast`` and ``high`` qualities guided by them."""
     depth = base.max_depth
     configs = [Config(DEFAULT_CONFIG, f"path, NEE + MIS, depth {depth} (the scene's)")]
     configs += [
@@ -150,6 +163,16 @@ def configurations(base: fmt.RenderSettings) -> list[Config]:
         Config("direct", "direct light (NEE + MIS, two vertices)", {"integrator": "direct"}),
         Config("whitted", "Whitted (direct light, specular recursion)", {"integrator": "whitted"}),
         Config("ao", "ambient occlusion (not radiance: all bias)", {"integrator": "ao"}),
+        Config(AOV_CONFIG, "path, recording the AOVs (the denoiser's guides)", {"aovs": True}),
+    ]
+    configs += [
+        Config(
+            f"path-oidn-{quality}",
+            f"path, denoised (OIDN {quality}, albedo + normal guides)",
+            denoise=quality,
+            source=AOV_CONFIG,
+        )
+        for quality in ("fast", "high")
     ]
     return configs
 
@@ -183,10 +206,21 @@ def render_counted(
     sample_start: int,
     threads: int,
     plan: EffectPlan,
-) -> tuple[np.ndarray, int, int]:
-    """A frame (:func:`tracer.render.render_image`) with the rays it traced and the kernel work
-    it took: ``(rgb, rays, work)``."""
+) -> tuple[np.ndarray, int, int, np.ndarray | None]:
+    """A frame (:func:`tracer.render.render_image`) with the rays it traced, the kernel work
+    it took and its AOVs when the settings record them: ``(rgb, rays, work, aov)``."""
     rays = []
+    aov = (
+        np.empty((camera.height, camera.width, CHANNELS), np.float32)
+        if settings.renders_aovs
+        else None
+    )
+
+    def on_lines(lines) -> None:
+        rays.append(int(lines.rays.sum()))
+        if aov is not None:
+            aov[lines.y0 : lines.y1] = lines.aov
+
     rgb, cost = render_image(
         scene,
         camera,
@@ -194,9 +228,27 @@ def render_counted(
         sample_start=sample_start,
         threads=threads,
         plan=plan,
-        on_lines=lambda lines: rays.append(int(lines.rays.sum())),
+        on_lines=on_lines,
     )
-    return rgb, sum(rays), int(cost.sum())
+    return rgb, sum(rays), int(cost.sum()), aov
+
+
+def denoised_image(
+    image: np.ndarray, aov: np.ndarray, quality: str, prefilter: bool, threads: int
+) -> np.ndarray:
+    """``image`` denoised at ``quality``, guided by the albedo and normal of ``aov``."""
+    from tracer.post.denoise import denoise
+
+    layers = aov_layers(aov.astype(np.float32))
+    done = denoise(
+        image.astype(np.float32),
+        layers["albedo"],
+        layers["normal"],
+        quality=quality,
+        threads=threads,
+        prefilter=prefilter,
+    )
+    return done.image
 
 
 class RenderClock:
@@ -227,6 +279,7 @@ class _Run:
     settings: fmt.RenderSettings
     plan: EffectPlan
     total: np.ndarray
+    aov_total: np.ndarray | None = None
     spp: int = 0
     seconds: float = 0.0
     wall_seconds: float = 0.0
@@ -243,48 +296,75 @@ def sweep(
     floor: float,
     options: StudyOptions,
     on_samples: Callable[[int], None],
-) -> tuple[dict, dict[int, np.ndarray]]:
-    """Run every configuration through the spp levels, interleaved wave by wave; returns the
-    per-configuration records and the default configuration's images at ``STRIP_SPP``."""
+    prefilter: bool = False,
+) -> tuple[dict, dict[str, dict[int, np.ndarray]]]:
+    """Run every configuration through the spp levels, interleaved wave by wave (a denoised one
+    after its source, its guides prefiltered when ``prefilter``); returns the per-configuration
+    records and the images at ``STRIP_SPP`` of the default configuration and of
+    ``DENOISED_STRIP``, by configuration name."""
     threads = options.threads or default_threads()
     runs = []
     for config in configurations(base):
         settings = config.settings(base)
         plan = config.plan(scene, settings)
         runs.append(_Run(config, settings, plan, np.zeros((camera.height, camera.width, 3))))
-        tiny = fmt.override(camera, width=1, height=1)  # compile or load the kernel, untimed
-        render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=options.threads)
-    strips = {}
+        if config.source is None:  # compile or load the kernel, untimed
+            tiny = fmt.override(camera, width=1, height=1)
+            render_image(
+                scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=options.threads
+            )
+    by_name = {run.config.name: run for run in runs}
+    strips: dict[str, dict[int, np.ndarray]] = {DEFAULT_CONFIG: {}, DENOISED_STRIP: {}}
     levels = spp_levels(options.max_spp)
     for index, level in enumerate(levels):
+        flip = index % options.flip_every == 0 or index == len(levels) - 1
         for run in runs:
-            n = level - run.spp
-            with RenderClock(threads) as clock:
-                rgb, rays, work = render_counted(
-                    scene, camera, fmt.override(run.settings, spp=n), run.spp, threads, run.plan
-                )
-            run.seconds += clock.seconds
-            run.wall_seconds += clock.wall_seconds
-            run.total += rgb.astype(np.float64) * n
+            if run.config.source is None:
+                n = level - run.spp
+                with RenderClock(threads) as clock:
+                    rgb, rays, work, aov = render_counted(
+                        scene, camera, fmt.override(run.settings, spp=n), run.spp, threads, run.plan
+                    )
+                run.seconds += clock.seconds
+                run.wall_seconds += clock.wall_seconds
+                run.total += rgb.astype(np.float64) * n
+                if aov is not None:
+                    run.aov_total = aov.astype(np.float64) * n + (
+                        0.0 if run.aov_total is None else run.aov_total
+                    )
+                run.rays += rays
+                run.work += work
+                image = run.total / level
+                seconds, wall_seconds = run.seconds, run.wall_seconds
+                on_samples(n)
+            else:  # the source rendered this level already: denoise its mean once
+                source = by_name[run.config.source]
+                with RenderClock(threads) as clock:
+                    image = denoised_image(
+                        source.total / level,
+                        source.aov_total / level,
+                        run.config.denoise,
+                        prefilter,
+                        threads,
+                    )
+                seconds = source.seconds + clock.seconds
+                wall_seconds = source.wall_seconds + clock.wall_seconds
+                run.rays, run.work = source.rays, source.work
             run.spp = level
-            run.rays += rays
-            run.work += work
-            image = run.total / level
-            flip = index % options.flip_every == 0 or index == len(levels) - 1
             record = {
                 "spp": level,
-                "seconds": run.seconds,
-                "wall_seconds": run.wall_seconds,
+                "seconds": seconds,
+                "wall_seconds": wall_seconds,
                 "rays": run.rays,
-                "mrays_per_second": run.rays / run.seconds / 1e6 if run.seconds > 0 else None,
+                "mrays_per_second": run.rays / seconds / 1e6 if seconds > 0 else None,
                 "work": run.work,
             }
             run.levels.append(record | measure(image, ref, floor, flip))
-            if run.config.name == DEFAULT_CONFIG and level in STRIP_SPP:
-                strips[level] = image.astype(np.float32)
-            on_samples(n)
-    results = {
-        run.config.name: {
+            if run.config.name in strips and level in STRIP_SPP:
+                strips[run.config.name][level] = image.astype(np.float32)
+    results = {}
+    for run in runs:
+        data = {
             "label": run.config.label,
             "settings": {
                 k: v
@@ -292,11 +372,16 @@ def sweep(
                 if k in ("integrator", "max_depth", "rr_depth", "effect_plan")
             },
             "effects": run.plan.names(),
-            "levels": run.levels,
-            "time_to": {f"{t:g}": time_to(run.levels, t) for t in TARGETS},
         }
-        for run in runs
-    }
+        if run.config.source is not None:
+            data["denoise"] = {
+                "quality": run.config.denoise,
+                "source": run.config.source,
+                "prefiltered": prefilter,
+            }
+        data["levels"] = run.levels
+        data["time_to"] = {f"{t:g}": time_to(run.levels, t) for t in TARGETS}
+        results[run.config.name] = data
     return results, strips
 
 
@@ -362,7 +447,7 @@ def effect_costs(
     for round_index in range(options.repeats):
         for name, settings, plan, total, seconds in stages:
             with RenderClock(threads) as clock:
-                rgb, stage_rays, stage_work = render_counted(
+                rgb, stage_rays, stage_work, _ = render_counted(
                     scene, camera, settings, round_index * options.effect_spp, threads, plan
                 )
             seconds.append(clock.seconds)
@@ -483,6 +568,11 @@ def planned_spp(options: StudyOptions, configs: int, own_reference_needed: bool)
     return reference + configs * options.max_spp + effect + options.max_spp
 
 
+def rendering_configs(configs: list[Config]) -> int:
+    """How many of ``configs`` render samples (the denoised ones take their sources')."""
+    return sum(1 for config in configs if config.source is None)
+
+
 def study_scene(
     path: Path,
     options: StudyOptions,
@@ -494,13 +584,14 @@ def study_scene(
     the strip images. ``on_start(name, total_spp)`` opens its progress, ``on_phase`` names
     each part as it starts."""
     name = scene_name(path)
-    scene = compile_scene(load_scene(path))
+    state = load_scene(path)
+    scene = compile_scene(state)
     width, height = study_size(scene.camera.width, scene.camera.height, options.pixels)
     camera = fmt.override(scene.camera, width=width, height=height)
     base = fmt.override(scene.render, seed=options.seed, aovs=False, denoise="off")
     ref, note = independent_reference(path.parent, width, height, base)
     configs = configurations(base)
-    on_start(name, planned_spp(options, len(configs), ref is None))
+    on_start(name, planned_spp(options, rendering_configs(configs), ref is None))
     if ref is None:
         on_phase("reference")
         ref = own_reference(
@@ -516,7 +607,10 @@ def study_scene(
         )
     floor = noise_floor(ref.mean, ref.var_of_mean)
     on_phase("sweep")
-    configs_result, strips = sweep(scene, camera, base, ref, floor, options, on_samples)
+    noisy_guides = guides_are_noisy(state.materials.values(), camera)
+    configs_result, strips = sweep(
+        scene, camera, base, ref, floor, options, on_samples, prefilter=noisy_guides
+    )
     on_phase("effect costs")
     costs = effect_costs(scene, camera, base, ref, floor, options, on_samples)
     on_phase("calibration")
@@ -538,7 +632,12 @@ def study_scene(
         "effects": costs,
         "calibration": calib,
     }
-    return result, {"reference": ref.mean.astype(np.float32), "strips": strips}
+    images = {
+        "reference": ref.mean.astype(np.float32),
+        "strips": strips[DEFAULT_CONFIG],
+        "denoised_strips": strips[DENOISED_STRIP],
+    }
+    return result, images
 
 
 def machine() -> dict:

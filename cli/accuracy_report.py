@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cli.accuracy import DEFAULT_CONFIG
+from cli.accuracy import DEFAULT_CONFIG, DENOISED_STRIP
 from cli.accuracy_metrics import TARGETS
 from tracer.accuracy.error_estimate import PARTS, SPOT_CHECK_FACTOR, SPOT_CHECKS, to_display
 
@@ -52,20 +52,23 @@ def save_images(images: dict, path: Path) -> None:
     arrays = {f"{name}/reference": scene["reference"] for name, scene in images.items()}
     for name, scene in images.items():
         arrays.update({f"{name}/strip/{spp}": img for spp, img in scene["strips"].items()})
+        denoised = scene.get("denoised_strips", {})
+        arrays.update({f"{name}/denoised/{spp}": img for spp, img in denoised.items()})
     np.savez_compressed(path, **arrays)
 
 
 def load_previous(folder: Path) -> tuple[dict, dict]:
     """The results and images a previous run wrote into ``folder`` (to rebuild its report)."""
     results = json.loads((folder / "accuracy.json").read_text())
-    images: dict = {name: {"strips": {}} for name in results["scenes"]}
+    images: dict = {name: {"strips": {}, "denoised_strips": {}} for name in results["scenes"]}
     with np.load(folder / "images.npz") as arrays:
         for key in arrays.files:
             name, kind, *rest = key.split("/")
             if kind == "reference":
                 images[name]["reference"] = arrays[key]
             else:
-                images[name]["strips"][int(rest[0])] = arrays[key]
+                strips = "strips" if kind == "strip" else "denoised_strips"
+                images[name][strips][int(rest[0])] = arrays[key]
     return results, images
 
 
@@ -122,6 +125,8 @@ def error_vs_time_plot(name: str, scene: dict, path: Path) -> Path:
         t = [lv["seconds"] for lv in data["levels"]]
         e = [relative_error(lv["rel_mse"]) for lv in data["levels"]]
         style = {"linewidth": 2.5, "color": "black"} if config == DEFAULT_CONFIG else {}
+        if "denoise" in data:
+            style = {"linewidth": 2.0, "linestyle": "--"}
         ax.plot(t, e, marker="o", markersize=3, label=config, **style)
     default = scene["configs"][DEFAULT_CONFIG]["levels"]
     middle = default[len(default) // 2]
@@ -146,23 +151,33 @@ def error_vs_time_plot(name: str, scene: dict, path: Path) -> Path:
 
 
 def strip_plot(name: str, scene: dict, scene_images: dict, path: Path) -> Path:
-    """Crops of the default configuration at each strip spp beside the reference's."""
+    """Crops of the default configuration at each strip spp beside the reference's, and under
+    them those of ``DENOISED_STRIP`` where the study has them."""
     import matplotlib.pyplot as plt
 
     reference = scene_images["reference"]
-    strips = scene_images["strips"]
     crop = crop_box(reference)
-    levels = {lv["spp"]: lv for lv in scene["configs"][DEFAULT_CONFIG]["levels"]}
-    panels = [(f"{spp} spp\nimage error {relative_error(levels[spp]['rel_mse']):.1%}", img)
-              for spp, img in sorted(strips.items())]  # fmt: skip
-    panels.append(("reference", reference))
-    fig, axes = plt.subplots(1, len(panels), figsize=(2.0 * len(panels), 2.4))
-    for ax, (title, image) in zip(np.atleast_1d(axes), panels, strict=True):
-        y0, y1, x0, x1 = crop
-        ax.imshow(to_display(image[y0:y1, x0:x1]), interpolation="nearest")
-        ax.set_title(title, fontsize=8)
-        ax.axis("off")
-    fig.suptitle(f"{name}: path ({scene['configs'][DEFAULT_CONFIG]['label']})", fontsize=9)
+    rows = [(DEFAULT_CONFIG, scene_images["strips"])]
+    if scene_images.get("denoised_strips") and DENOISED_STRIP in scene["configs"]:
+        rows.append((DENOISED_STRIP, scene_images["denoised_strips"]))
+    columns = len(rows[0][1]) + 1
+    fig, axes = plt.subplots(
+        len(rows), columns, figsize=(2.0 * columns, 2.4 * len(rows)), squeeze=False
+    )
+    for row, (config, strips) in zip(axes, rows, strict=True):
+        levels = {lv["spp"]: lv for lv in scene["configs"][config]["levels"]}
+        panels = [(f"{config} {spp} spp\nimage error "
+                   f"{relative_error(levels[spp]['rel_mse']):.1%}", img)
+                  for spp, img in sorted(strips.items())]  # fmt: skip
+        panels.append(("reference", reference))
+        for ax, (title, image) in zip(row, panels, strict=False):
+            y0, y1, x0, x1 = crop
+            ax.imshow(to_display(image[y0:y1, x0:x1]), interpolation="nearest")
+            ax.set_title(title, fontsize=8)
+        for ax in row:
+            ax.axis("off")
+    labels = "; ".join(f"{c}: {scene['configs'][c]['label']}" for c, _ in rows)
+    fig.suptitle(f"{name}: {labels}", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -323,6 +338,7 @@ def markdown(results: dict, image_dir: str, command: str) -> str:
             f"{time_to_text(times['0.01'])} | {time_to_text(times['0.001'])} | "
             f"{time_to_text(times['0.0001'])} | {best_text} |"
         )
+    lines += ["", *denoiser_section(results), ""]
     lines += ["", *calibration_section(results, image_dir), ""]
     lines += [
         "### Cost per effect (Reiter eq. 5.1)",
@@ -335,6 +351,62 @@ def markdown(results: dict, image_dir: str, command: str) -> str:
     for name, scene in results["scenes"].items():
         lines += scene_section(name, scene, image_dir)
     return "\n".join(lines) + "\n"
+
+
+DENOISE_TARGET = 1 / 8
+"""Issue 24's target: time to relative MSE 1e-2 with the denoiser at most 1/8 of without."""
+
+
+def denoised_configs(scene: dict) -> list[str]:
+    return [name for name, data in scene["configs"].items() if "denoise" in data]
+
+
+def denoiser_section(results: dict) -> list[str]:
+    """Time to quality with and without the denoiser, per scene, and its bias floor: what is
+    left at the sweep's last level, raw against denoised."""
+    scenes = {n: s for n, s in results["scenes"].items() if denoised_configs(s)}
+    if not scenes:
+        return []
+    lines = [
+        "### Time to quality with the denoiser",
+        "",
+        "Render seconds to a relative MSE of 1e-2 and 1e-3 for `path` and for `path` denoised "
+        "by Open Image Denoise (the denoised configurations denoise the mean of `path-aov`, "
+        "`path` recording its albedo and normal AOVs, once per level; their seconds are that "
+        "render's plus one denoising). *Ratio*: the quicker denoised time to 1e-2 over `path`'s "
+        f"(target <= 1/{round(1 / DENOISE_TARGET)}). *At the last level*: relative MSE at the "
+        "sweep's highest spp, raw and denoised: a denoised error above the raw one is the "
+        "denoiser's bias (it blurs what the samples have resolved).",
+        "",
+    ]
+    names = denoised_configs(next(iter(scenes.values())))
+    lines += [
+        "| scene | `path`: 1e-2 / 1e-3 | "
+        + " | ".join(f"`{n}`: 1e-2 / 1e-3" for n in names)
+        + f" | ratio at 1e-2 | at the last level: {' / '.join(['path', *names])} |",
+        "|---" * (len(names) + 4) + "|",
+    ]
+    for name, scene in scenes.items():
+        configs = scene["configs"]
+        raw = configs[DEFAULT_CONFIG]
+        cells = [
+            f"{time_to_text(raw['time_to']['0.01'])} / {time_to_text(raw['time_to']['0.001'])}"
+        ]
+        denoised = [configs[c] for c in names]
+        for data in denoised:
+            times = data["time_to"]
+            cells.append(f"{time_to_text(times['0.01'])} / {time_to_text(times['0.001'])}")
+        quickest = [d["time_to"]["0.01"]["seconds"] for d in denoised]
+        quickest = min((t for t in quickest if t is not None), default=None)
+        base = raw["time_to"]["0.01"]["seconds"]
+        if quickest is None or base is None:
+            ratio = "-"
+        else:
+            r = quickest / base
+            ratio = f"{r:.3f} ({'met' if r <= DENOISE_TARGET else 'missed'})"
+        last = " / ".join(f"{d['levels'][-1]['rel_mse']:.1e}" for d in [raw, *denoised])
+        lines.append(f"| {name} | {' | '.join(cells)} | {ratio} | {last} |")
+    return lines
 
 
 def within_band(record: dict) -> bool:

@@ -147,7 +147,8 @@ function setupMouse() {
 async function startSession() {
   await stopSession();
   const [width, height] = $("size").value.split("x").map(Number);
-  const session = await api("POST", "/v1/sessions", { scene_id: $("scenes").value, width, height });
+  const denoise = $("denoise").value;
+  const session = await api("POST", "/v1/sessions", { scene_id: $("scenes").value, width, height, denoise });
   state.session = session;
   state.orbit = orbitFrom(session.camera);
   const img = $("stream");
@@ -170,6 +171,12 @@ async function stopSession() {
   if (session) await api("DELETE", `/v1/sessions/${session.id}`).catch(() => {});
 }
 
+async function setDenoise() {
+  if (!state.session) return;
+  const session = await api("PATCH", `/v1/sessions/${state.session.id}`, { denoise: $("denoise").value });
+  status(`session ${session.id}: denoise ${session.denoise}`);
+}
+
 function fmt(value, digits = 2) {
   if (value === null || value === undefined) return "-";
   return typeof value === "number" ? value.toFixed(digits) : String(value);
@@ -182,7 +189,8 @@ async function showStats() {
     const rows = [["fps", fmt(s.fps, 1)], ["stream fps", fmt(s.fps_stream, 1)], ["spp", s.spp],
       ["blend", fmt(s.blend, 3)], ["scale", fmt(s.scale)], ["samples", s.samples_accumulated],
       ["frames", s.frames], ["camera latency ms", fmt(s.camera_latency_last_ms, 0)],
-      ["encode ms", fmt(s.encode_ms, 1)]];
+      ["encode ms", fmt(s.encode_ms, 1)], ["denoise", s.denoise],
+      ["denoise ms", fmt(s.denoise_ms, 1)]];
     $("stats").innerHTML = rows.map(([k, v]) => `<dt>${k}</dt><dd>${v}</dd>`).join("");
   } catch (error) {
     status(error.message, true);
@@ -195,6 +203,7 @@ async function showStats() {
 async function renderStill() {
   const [width, height] = $("still-size").value.split("x").map(Number);
   const body = { scene_id: $("scenes").value, spp: Number($("spp").value), width, height };
+  if ($("denoise").value !== "off") body.denoise = $("denoise").value;
   if (state.orbit) body.camera = orbitCamera(state.orbit);
   const job = await api("POST", "/v1/jobs", body);
   $("job").textContent = `job ${job.id}: queued`;
@@ -233,6 +242,7 @@ window.addEventListener("DOMContentLoaded", guard(async () => {
   $("start").addEventListener("click", guard(startSession));
   $("stop").addEventListener("click", guard(stopSession));
   $("render").addEventListener("click", guard(renderStill));
+  $("denoise").addEventListener("change", guard(setDenoise));
   window.addEventListener("beforeunload", () => {
     if (state.session) {
       fetch(withToken(`/v1/sessions/${state.session.id}`), { method: "DELETE", keepalive: true });

@@ -7,7 +7,7 @@ from pathlib import Path
 from cli.cluster_render import render_through_cluster
 from cli.errors import CommandFailed, UsageError
 from cli.in_process import render_to_file
-from cli.output import check_layer_choice, output_path
+from cli.output import check_layer_choice, output_path, stderr
 from cluster.jobs import quality_goal, with_overrides
 from cluster.progressive import DEFAULT_MAX_SPP, PARTS, Goal
 from tracer.compiled.scene import compile_scene
@@ -53,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
             require_denoiser()
         except DenoiserUnavailable as exc:
             raise CommandFailed(str(exc)) from None
+    if goal is not None and goal.target_error is not None and settings.denoise != "off":
+        note(args.quiet, TARGET_WITH_DENOISE)
     frames = frame_selection(state, args.frames)
     if runs_in_process(args, camera, settings, still=frames is None, progressive=goal is not None):
         scene, label = compile_scene(state), Path(args.scene).name
@@ -68,6 +70,17 @@ def run(args: argparse.Namespace) -> int:
         goal = goal_of(args, len(frames))
     render_through_cluster(state, frames, outputs, args, goal)
     return 0
+
+
+TARGET_WITH_DENOISE = (
+    "note: --target-error is the beauty's estimated error; the denoised image's is not "
+    "estimated (usually lower, but a denoiser's bias can leave it higher: docs/denoising.md)"
+)
+
+
+def note(quiet: bool, text: str) -> None:
+    if not quiet:
+        stderr.print(f"[yellow]{text}[/]")
 
 
 def runs_in_process(

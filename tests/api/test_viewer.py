@@ -1,6 +1,7 @@
 """The web viewer in headless Chromium (Debian's ``chromium``, driven by Playwright): the
 stream shows changing, non-black frames, a drag orbits the camera and changes the view, the
-stats fill in, and a still renders and downloads.
+stats fill in, the denoise toggle makes the session denoise its stream, and a still renders
+and downloads.
 
 Needs the ``chromium`` package: the fixture installs it with apt-get when it is missing and
 this runs as root (set TILERENDER_NO_BROWSER_INSTALL=1 to skip instead)."""
@@ -105,6 +106,18 @@ def test_viewer_streams_orbits_and_renders(live_server, browser):
 
     page.wait_for_selector("#stats dt", timeout=10_000)
     assert "fps" in page.inner_text("#stats")
+
+    page.select_option("#denoise", "fast")  # the toggle: the session denoises its stream
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        status = http.get(f"/v1/sessions/{session_id}").json()
+        if status["stats"]["last_frame"].get("denoise"):
+            break
+        time.sleep(0.2)
+    assert status["denoise"] == "fast" and status["stats"]["last_frame"]["denoise"], status
+    page.wait_for_function(
+        "() => document.getElementById('stats').innerText.includes('fast')", timeout=10_000
+    )
 
     page.fill("#spp", "4")
     page.fill("#still-size", "64x36")

@@ -153,3 +153,33 @@ def test_the_guides_are_prefiltered_where_they_are_noisy(capsys, tmp_path, tiny_
         denoised[choice] = layers["denoised"]
     assert np.array_equal(denoised["auto"], denoised["off"])
     assert not np.array_equal(denoised["on"], denoised["off"])
+
+
+def test_a_target_error_with_denoising_says_what_it_estimates(capsys, tmp_path, tiny_scene_file):
+    """--target-error with --denoise renders in waves to the beauty's estimated error and says
+    plainly that the denoised image's error is not estimated."""
+    out = tmp_path / "frame.npz"
+    code, _, err = run(
+        capsys,
+        "render",
+        tiny_scene_file,
+        "-o",
+        out,
+        "--width",
+        24,
+        "--height",
+        16,
+        "--target-error",
+        0.5,
+        "--max-spp",
+        8,
+        "--denoise",
+        "fast",
+    )
+    assert code == 0, err
+    assert "the denoised image's is not estimated" in " ".join(err.split())
+    layers, metadata = read_layers(out)
+    assert "denoised" in layers and metadata["progressive"]["stopped"] in (
+        "target_error",
+        "max_spp",
+    )
