@@ -192,7 +192,7 @@ class JobQueue:
             write_image(path, layers["beauty"])
         else:
             path = job_dir(self.settings, run.id) / f"{name}.npz"
-            write_layers(path, layers, {k: v for k, v in info.items() if k == "denoise"})
+            write_layers(path, layers, {k: v for k, v in info.items() if k in ("denoise", "ids")})
         position = next(i for i, f in enumerate(run.frames) if f.number == spec.number)
         self.store.add_frame(
             run.id,

@@ -17,6 +17,7 @@ from cluster.progressive import ProgressiveFrame, part_request
 from cluster.scene_graph import SceneGraph
 from cluster.turns import TurnedFrame, TurnSizer, spot_checks_in_turns
 from tracer.accuracy.spot_check import SpotCheck
+from tracer.io.metadata import id_names
 from tracer.post.frame_layers import frame_layers
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
@@ -166,7 +167,7 @@ class JobRun:
     def step(self, coordinator) -> tuple[FrameSpec, dict[str, np.ndarray], dict] | None:
         """Render one turn; returns (frame, layers, info) when that turn finished a frame:
         its layers by name (``tracer.post.frame_layers``), info its spp, error estimate,
-        seconds and the denoiser's report."""
+        seconds, the denoiser's report and what the id layers name (``id_names``)."""
         if self._work is None:
             self.current = self.todo[0]
             self.current_started = self.sizer.seconds_total
@@ -234,7 +235,8 @@ class JobRun:
         self.current = None
         self.progressive = None
         self.done += 1
-        return spec, layers, {"spp": spp, "error_estimate": error, "seconds": seconds, **made}
+        info = {"spp": spp, "error_estimate": error, "seconds": seconds, **made}
+        return spec, layers, {**info, **id_names(self.base, self.base.render)}
 
     def progress(self) -> dict:
         """Frames, lines, samples and an ETA, from what the thread has recorded (any thread)."""

@@ -196,9 +196,9 @@ class JobCreate(Strict):
     )
     aovs: bool | None = Field(
         default=None,
-        description="also render the AOV layers albedo, normal, depth, position and alpha "
-        "(the scene's render.aovs by default); frames then offer ?layer= and every layer as "
-        "exr or npz",
+        description="also render the AOV layers albedo, normal, depth, position, alpha, "
+        "object_id and material_id (the scene's render.aovs by default); frames then offer "
+        "?layer= and every layer as exr or npz",
     )
     denoise: Literal[DENOISE] | None = Field(
         default=None,

@@ -10,7 +10,7 @@ from cli.output import describe_denoise, note_compiling, progress_bar, stderr, w
 from cluster.balancing import DEFAULT_BALANCER
 from cluster.jobs import embedded_ray_cpus
 from cluster.progressive import Goal, ProgressiveFrame, render_progressive
-from tracer.io.metadata import image_metadata
+from tracer.io.metadata import id_names, image_metadata
 from tracer.request import FrameRequest
 from tracer.scene.model import SceneState
 
@@ -54,8 +54,8 @@ def render_through_cluster(
             disconnect()
 
 
-def frame_metadata(done, args: argparse.Namespace) -> dict:
-    """A coordinator frame's image metadata."""
+def frame_metadata(done, args: argparse.Namespace, state: SceneState) -> dict:
+    """A coordinator frame's image metadata (``state``: the scene, for the names of ids)."""
     rays = int(done.rays.sum()) if done.rays is not None else None
     return image_metadata(
         done.camera,
@@ -68,13 +68,16 @@ def frame_metadata(done, args: argparse.Namespace) -> dict:
         scene_version=done.version,
         tracers=len(done.split),
         balancer=args.balancer or DEFAULT_BALANCER,
+        **id_names(state, done.settings),
     )
 
 
-def progressive_frame_metadata(done, args: argparse.Namespace, progress: ProgressiveFrame):
+def progressive_frame_metadata(
+    done, args: argparse.Namespace, progress: ProgressiveFrame, state: SceneState
+):
     """A progressive frame's metadata: its last wave's, with the spp and seconds of all waves
     (rays are counted per wave only, so none are given)."""
-    metadata = frame_metadata(done, args)
+    metadata = frame_metadata(done, args, state)
     metadata["render"]["spp"] = progress.spp
     metadata["seconds"] = round(progress.elapsed, 3)
     metadata["rays"] = None
@@ -126,7 +129,7 @@ def render_still(coordinator, output: Path, args: argparse.Namespace, goal: Goal
         info = write_output(
             output,
             progress.image,
-            progressive_frame_metadata(done, args, progress),
+            progressive_frame_metadata(done, args, progress, coordinator.graph.state),
             progress.aov,
             done.settings,
             args.layer,
@@ -144,9 +147,8 @@ def render_still(coordinator, output: Path, args: argparse.Namespace, goal: Goal
         done = coordinator.render_frame(FrameRequest(0))
         progress.advance(task)
     tracers = len(done.split)
-    info = write_output(
-        output, done.rgb, frame_metadata(done, args), done.aov, done.settings, args.layer
-    )
+    metadata = frame_metadata(done, args, coordinator.graph.state)
+    info = write_output(output, done.rgb, metadata, done.aov, done.settings, args.layer)
     if not args.quiet:
         camera, spp = done.camera, done.settings.spp
         rate = camera.width * camera.height * spp / max(done.wall_seconds, 1e-9) / 1e6
@@ -166,7 +168,7 @@ def render_frames_progressive(coordinator, frames, outputs, args, goal: Goal) ->
             coordinator.graph.frame_commit(number)
             label = f"{Path(args.scene).name} frame {number}"
             progress, done = render_progressive_frame(coordinator, goal, number, label, args.quiet)
-            metadata = progressive_frame_metadata(done, args, progress)
+            metadata = progressive_frame_metadata(done, args, progress, coordinator.graph.state)
             write_output(path, progress.image, metadata, progress.aov, done.settings, args.layer)
             written += 1
             if not args.quiet:
@@ -188,7 +190,7 @@ def render_frames(coordinator, frames: list[int], outputs: list[Path], args) -> 
             task = progress.add_task(Path(args.scene).name, total=len(frames))
             for done, path in zip(coordinator.render_animation(frames), outputs, strict=True):
                 tracers = len(done.split)
-                metadata = frame_metadata(done, args)
+                metadata = frame_metadata(done, args, coordinator.graph.state)
                 write_output(path, done.rgb, metadata, done.aov, done.settings, args.layer)
                 written += 1
                 idle.append(done.idle_percent)

@@ -10,7 +10,7 @@ from tracer.compiled.scene import CompiledScene
 from tracer.integrators.aov import CHANNELS
 from tracer.integrators.effects import effect_plan
 from tracer.integrators.kernel_choice import plan_report
-from tracer.io.metadata import image_metadata
+from tracer.io.metadata import id_names, image_metadata
 from tracer.render import render_image, render_lines
 from tracer.scene import format as fmt
 
@@ -56,7 +56,9 @@ def render_to_file(
         image, _ = render_image(scene, camera, settings, threads=threads, on_lines=on_lines)
     seconds = time.perf_counter() - start
     plan = plan_report(effect_plan(scene, settings), settings)
-    metadata = image_metadata(camera, settings, plan, seconds, sum(rays), "in-process")
+    metadata = image_metadata(
+        camera, settings, plan, seconds, sum(rays), "in-process", **id_names(scene.state, settings)
+    )
     for path in outputs:
         info = write_output(path, image, metadata, aov, settings, layer)
     if not quiet:

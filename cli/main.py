@@ -247,9 +247,9 @@ def add_layer_options(parser: argparse.ArgumentParser) -> None:
         "--aov",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="also render the AOV layers albedo, normal, depth, position and alpha from the "
-        "same paths (path, direct, whitted, cost); a .exr then holds every layer as named "
-        "channels, a .npz one array per layer (docs/outputs.md)",
+        help="also render the AOV layers albedo, normal, depth, position, alpha, object_id and "
+        "material_id from the same paths (path, direct, whitted, cost); a .exr then holds every "
+        "layer as named channels, a .npz one array per layer (docs/outputs.md)",
     )
     parser.add_argument(
         "--denoise",

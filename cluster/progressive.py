@@ -34,7 +34,7 @@ import numpy as np
 
 from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
 from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
-from tracer.integrators.aov import CHANNELS
+from tracer.integrators.aov import CHANNELS, IDS
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
@@ -137,6 +137,9 @@ class ProgressiveFrame:
         self.aov_sums: np.ndarray | None = None
         """Sample-weighted sums of the parts' AOVs (H, W, ``aov.CHANNELS``), when they carry
         them."""
+        self.aov_ids: np.ndarray | None = None
+        """The id columns (``aov.IDS``) of the first part, which holds every pixel's sample 0:
+        ids are not averaged."""
         self._ledger = SpotCheckLedger(self.width * self.height)
 
     @property
@@ -160,11 +163,13 @@ class ProgressiveFrame:
 
     @property
     def aov(self) -> np.ndarray | None:
-        """The AOVs' mean over every sample taken, float32 (H, W, ``aov.CHANNELS``), or None
-        when the parts carry none."""
+        """The AOVs' mean over every sample taken, float32 (H, W, ``aov.CHANNELS``), with the
+        first part's ids; None when the parts carry none."""
         if self.aov_sums is None:
             return None
-        return (self.aov_sums / max(1, self.spp)).astype(np.float32)
+        mean = (self.aov_sums / max(1, self.spp)).astype(np.float32)
+        mean[..., IDS] = self.aov_ids
+        return mean
 
     def summary(self) -> dict:
         """The goal, the estimate and why the frame stopped (for an image's metadata)."""
@@ -217,6 +222,8 @@ class ProgressiveFrame:
             if self.aov_sums is None:
                 self.aov_sums = np.zeros(np.shape(aov), np.float64)
             self.aov_sums += np.asarray(aov, np.float64) * part.spp
+            if part.sample_start == 0:
+                self.aov_ids = np.array(aov[..., IDS], np.float32)
         self.work = None if work is None or self.work is None else self.work + float(work)
         self.sums[part.index] += np.asarray(rgb, np.float64) * part.spp
         self._wave.append(part.spp)

@@ -167,9 +167,9 @@ def test_job_kernel_choice_same_pixels_and_bad_kernel_refused(client):
 
 def test_job_layers_aovs_and_denoise(client, tmp_path):
     """A job with aovs and denoise: its frame's default image is the denoised layer, ?layer=
-    gives each layer, format=npz and a multilayer exr hold every layer with the same bits, and
-    the beauty is the plain job's; a layer the frame lacks is a 404, a bad denoise value or
-    AOVs with a first-hit integrator a 422 (and no job is made)."""
+    gives each layer, format=npz and a multilayer exr hold every layer with the same bits and
+    the names of the ids, and the beauty is the plain job's; a layer the frame lacks is a 404,
+    a bad denoise value or AOVs with a first-hit integrator a 422 (and no job is made)."""
     from tracer.io.layers import layer_as_rgb, read_layers
 
     scene = upload_tiny(client)
@@ -183,8 +183,11 @@ def test_job_layers_aovs_and_denoise(client, tmp_path):
     bundle = tmp_path / "frame.npz"
     bundle.write_bytes(client.get(f"{url}?format=npz").content)
     layers, metadata = read_layers(bundle)
-    assert list(layers) == ["beauty", "denoised", "albedo", "normal", "depth", "position", "alpha"]
+    aovs = ["albedo", "normal", "depth", "position", "alpha", "object_id", "material_id"]
+    assert list(layers) == ["beauty", "denoised", *aovs]
     assert metadata["denoise"]["quality"] == "fast"
+    objects, materials = {"0": "floor", "1": "cube", "2": "lamp"}, {"0": "grey", "1": "lamp"}
+    assert metadata["ids"] == {"object_id": objects, "material_id": materials}
     exr = tmp_path / "frame.exr"
     exr.write_bytes(client.get(f"{url}?format=exr").content)
     from_exr, _ = read_layers(exr)
@@ -193,10 +196,11 @@ def test_job_layers_aovs_and_denoise(client, tmp_path):
     assert np.array_equal(layers["beauty"], beauty)
     default = np.load(io.BytesIO(client.get(f"{url}?format=npy").content))
     assert np.array_equal(default, layers["denoised"])
-    for name in ("beauty", "albedo", "depth"):
+    for name in ("beauty", "albedo", "depth", "object_id", "material_id"):
         shown = np.load(io.BytesIO(client.get(f"{url}?format=npy&layer={name}").content))
         assert np.array_equal(shown, layer_as_rgb(layers, name, view=False)), name
-    assert client.get(f"{url}?format=png&layer=normal").status_code == 200
+    for name in ("normal", "object_id"):
+        assert client.get(f"{url}?format=png&layer={name}").status_code == 200
     assert client.get(f"/v1/jobs/{plain['id']}/frames/0?format=png").status_code == 200
     r = client.get(f"/v1/jobs/{plain['id']}/frames/0?format=png&layer=albedo")
     assert r.status_code == 404 and "no albedo layer" in r.text

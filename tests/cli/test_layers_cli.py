@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from tests.cli.test_cli import assert_usage_error, run
-from tracer.io.images import read_image
-from tracer.io.layers import layer_as_rgb, read_layers
+from tests.helpers import tiny_scene
+from tracer.io.images import read_image, write_image
+from tracer.io.layers import LAYERS, layer_as_rgb, read_layers
 from tracer.post import denoise as denoise_module
 
 SIZE = ("--width", 24, "--height", 16, "--spp", 2, "-q")
@@ -29,6 +30,7 @@ def test_aov_and_denoise_write_every_layer_to_an_exr_and_an_npz(capsys, tmp_path
         assert metadata["denoise"]["guides"] == ["albedo", "normal"]
         assert metadata["render"]["aovs"] is True
     names = ["beauty", "denoised", "albedo", "normal", "depth", "position", "alpha"]
+    names += ["object_id", "material_id"]
     assert list(layers[".exr"]) == names and list(layers[".npz"]) == names
     for name in names:
         assert np.array_equal(layers[".exr"][name], layers[".npz"][name]), name
@@ -77,6 +79,34 @@ def test_a_single_layer_image_shows_the_chosen_layer(capsys, tmp_path, tiny_scen
     assert read_image(depth).max() > 1.0
 
 
+@pytest.mark.parametrize("executor", ["--in-process", "--no-in-process"])
+def test_the_id_layers_and_what_they_name(capsys, tmp_path, tiny_scene_file, executor):
+    """--aov writes the object and material ids with the names they stand for in the metadata
+    (in process and through Ray); --layer shows one: its ids in a .npy, false colour in a .png,
+    each object's material where it shows."""
+    bundle = tmp_path / "all.npz"
+    code, _, err = run(capsys, "render", tiny_scene_file, "-o", bundle, *SIZE, "--aov", executor)
+    assert code == 0, err
+    layers, metadata = read_layers(bundle)
+    objects = {"0": "floor", "1": "cube", "2": "lamp"}
+    assert metadata["ids"] == {"object_id": objects, "material_id": {"0": "grey", "1": "lamp"}}
+    materials = {o["name"]: o["material"] for o in tiny_scene()["objects"]}
+    seen = layers["object_id"] >= 0
+    assert {0, 1} <= set(np.unique(layers["object_id"]).tolist())
+    for o, m in zip(layers["object_id"][seen], layers["material_id"][seen], strict=True):
+        assert metadata["ids"]["material_id"][str(int(m))] == materials[objects[str(int(o))]]
+    for layer in ("object_id", "material_id"):
+        for suffix in (".npy", ".png"):
+            out = tmp_path / f"{layer}{suffix}"
+            code, _, err = run(
+                capsys, "render", tiny_scene_file, "-o", out, *SIZE, "--aov", "--layer", layer
+            )
+            assert code == 0, err
+            shown = layer_as_rgb(layers, layer, view=suffix == ".png")
+            expected = read_image(write_image(tmp_path / f"expected{suffix}", shown))
+            assert np.array_equal(read_image(out), expected), (layer, suffix)
+
+
 @pytest.mark.parametrize(
     ("extra", "words"),
     [
@@ -121,7 +151,7 @@ def test_no_aov_and_denoise_off_override_the_scene(capsys, tmp_path):
     data = tiny_scene()
     data["render"].update(aovs=True, denoise="fast")
     scene = write_json(tmp_path / "scene.json", data)
-    for extra, names in [((), 7), (("--no-aov", "--denoise", "off"), 1)]:
+    for extra, names in [((), len(LAYERS)), (("--no-aov", "--denoise", "off"), 1)]:
         out = tmp_path / f"{len(extra)}.exr"
         code, _, err = run(capsys, "render", scene, "-o", out, *SIZE, *extra)
         assert code == 0, err

@@ -16,6 +16,7 @@ from cluster.progressive import (
     Part,
     ProgressiveFrame,
     SpotCheck,
+    progressive_step,
     render_progressive,
 )
 from cluster.scene_graph import SceneGraph
@@ -23,7 +24,9 @@ from tests.worker.test_replica import studio
 from tracer.accuracy.error_estimate import PARTS, SPOT_CHECK_FACTOR, rel_mse
 from tracer.accuracy.spot_check import render_spot_checks
 from tracer.compiled.scene import compile_scene
-from tracer.render import render_image
+from tracer.integrators import aov
+from tracer.render import render_image, render_pixels
+from tracer.request import FrameRequest
 from tracer.scene.format import override
 
 W, H = 16, 12
@@ -166,23 +169,28 @@ def test_add_part_checks_its_input():
 
 def test_aovs_of_the_parts_blend_by_their_samples():
     """Parts that carry AOVs give the frame the sample-weighted mean of them (spot checks
-    leave them alone); a part without AOVs after parts with them is refused."""
+    leave them alone), but the ids of the first part (every pixel's sample 0); a part without
+    AOVs after parts with them is refused."""
     progress = ProgressiveFrame(W, H, Goal(max_spp=64))
-    total, spp = np.zeros((H, W, 11)), 0
+    total, spp, first = np.zeros((H, W, aov.CHANNELS)), 0, None
     while (part := progress.next_part()) is not None:
         if isinstance(part, SpotCheck):
             progress.add_spot_checks(np.zeros((0, 2), np.int64), np.zeros((PARTS, 0, 3)), 0.0)
             continue
-        aov = np.random.default_rng(part.sample_start).uniform(size=(H, W, 11))
-        total += aov * part.spp
+        channels = np.random.default_rng(part.sample_start).uniform(size=(H, W, aov.CHANNELS))
+        channels[..., aov.IDS] = np.random.default_rng(part.sample_start).integers(-1, 9, (H, W, 2))
+        first = channels if first is None else first
+        total += channels * part.spp
         spp += part.spp
-        progress.add_part(synthetic_part(part.spp, part.sample_start), 0.01, aov=aov)
-    assert progress.spp == spp == 64
-    assert np.allclose(progress.aov, total / spp, atol=1e-6)
+        progress.add_part(synthetic_part(part.spp, part.sample_start), 0.01, aov=channels)
+    assert progress.spp == spp == 64 and len(progress.waves) > 1
+    means = [c for c in range(aov.CHANNELS) if c not in (aov.OBJECT_ID, aov.MATERIAL_ID)]
+    assert np.allclose(progress.aov[..., means], total[..., means] / spp, atol=1e-6)
+    assert np.array_equal(progress.aov[..., aov.IDS], first[..., aov.IDS])
     assert ProgressiveFrame(W, H, Goal()).aov is None
     mixed = ProgressiveFrame(W, H, Goal())
     mixed.next_part()
-    mixed.add_part(synthetic_part(1, 0), 0.01, aov=np.zeros((H, W, 11)))
+    mixed.add_part(synthetic_part(1, 0), 0.01, aov=np.zeros((H, W, aov.CHANNELS)))
     mixed.next_part()
     with pytest.raises(ValueError, match="carries AOVs"):
         mixed.add_part(synthetic_part(1, 1), 0.01)
@@ -297,6 +305,31 @@ def test_through_the_coordinator(coordinator):
     goal = Goal(target_error=progress.error * 1.5, max_spp=32)
     reached = render_progressive(coordinator, goal)
     assert reached.stopped == "target_error" and reached.spp <= 32
+
+
+def test_aovs_through_the_coordinator(coordinator):
+    """Waves of parts with AOVs through tracer actors: the AOVs are the mean of samples [0, spp)
+    that the library renders in one call, the ids bit for bit those of every pixel's sample 0
+    (the first part's, not the last's)."""
+    state = coordinator.graph.state
+    camera, settings = state.camera, override(state.render, aovs=True)
+    request = FrameRequest(0, camera, settings)
+    progress = ProgressiveFrame(camera.width, camera.height, Goal(max_spp=16))
+    while not progress.done:
+        progressive_step(coordinator, progress, request)
+    assert progress.spp == 16 and len(progress.waves) > 1
+    compiled = compile_scene(state)
+
+    def library(spp, sample_start=0):
+        run = render_pixels(compiled, 0, camera.width * camera.height, camera,
+                            override(settings, spp=spp), sample_start=sample_start)  # fmt: skip
+        return run.aov.reshape(camera.height, camera.width, aov.CHANNELS)
+
+    whole = library(16)
+    means = [c for c in range(aov.CHANNELS) if c not in (aov.OBJECT_ID, aov.MATERIAL_ID)]
+    np.testing.assert_allclose(progress.aov[..., means], whole[..., means], rtol=1e-5, atol=1e-5)
+    assert np.array_equal(progress.aov[..., aov.IDS], whole[..., aov.IDS])
+    assert not np.array_equal(progress.aov[..., aov.IDS], library(1, 15)[..., aov.IDS])
 
 
 def test_spot_checks_through_the_coordinator(coordinator):

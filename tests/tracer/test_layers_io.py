@@ -8,8 +8,11 @@ import numpy as np
 import OpenEXR
 import pytest
 
+from tests.helpers import SCENES, tiny_scene
+from tracer.compiled.scene import compile_scene
 from tracer.io.images import read_image, write_image
 from tracer.io.layers import (
+    ID_LAYERS,
     LAYER_FORMATS,
     LAYERS,
     check_layers,
@@ -17,6 +20,11 @@ from tracer.io.layers import (
     read_layers,
     write_layers,
 )
+from tracer.io.metadata import id_names
+from tracer.post.frame_layers import frame_layers
+from tracer.render import render_pixels
+from tracer.scene.format import SceneFile, override
+from tracer.scene.loader import scene_from_file_model
 
 METADATA = {"renderer": "tilerender", "render": {"spp": 3, "seed": 7}, "note": "caf\u00e9"}
 
@@ -28,19 +36,23 @@ CHANNELS = [
     "Z",
     "position.X", "position.Y", "position.Z",
     "alpha.A",
+    "object_id.X",
+    "material_id.X",
 ]  # fmt: skip
 """The multilayer EXR's channels, written out by hand (not derived from the module)."""
 
 
 def random_layers(seed: int, height: int, width: int, names=tuple(LAYERS)) -> dict:
     """Signed values spanning many magnitudes, each layer different, with exact zeros, -0.0,
-    denormals, infinities and NaNs (one with a payload) in the beauty."""
+    denormals, infinities and NaNs (one with a payload) in the beauty; ids from -1 to 2**24."""
     rng = np.random.default_rng(seed)
     layers = {}
     for name in names:
-        shape = (height, width) if name in ("depth", "alpha") else (height, width, 3)
+        shape = (height, width, 3) if LAYERS[name] == 3 else (height, width)
         x = rng.choice([-1.0, 1.0], size=shape) * 10.0 ** rng.uniform(-30, 5, size=shape)
         x[rng.uniform(size=shape) < 0.1] = 0.0
+        if name in ID_LAYERS:
+            x = rng.integers(-1, 2**24, size=shape, endpoint=True)
         layers[name] = x.astype(np.float32)
     special = np.array([np.nan, np.inf, -np.inf, -0.0, 1e-45, -1e-40], np.float32)
     special[0] = np.uint32(0x7FC12345).view(np.float32)
@@ -327,3 +339,52 @@ def test_layer_as_rgb_of_a_missing_layer(name):
         ValueError, match=f"no layer '{name}'; the layers present are beauty, depth"
     ):
         layer_as_rgb(layers, name)
+
+
+def test_an_id_layer_is_false_colour():
+    """Each id its own colour; black where nothing was hit, every other id bright enough to
+    tell from it; float formats keep the ids."""
+    ids = np.array([[-1.0, 0.0, 1.0, 2.0], [3.0, 1.0, 2**24, -1.0]], np.float32)
+    for name in ID_LAYERS:
+        layers = {"beauty": beauty(2, 4), name: ids}
+        rgb = layer_as_rgb(layers, name)
+        assert rgb.dtype == np.float32 and rgb.shape == (2, 4, 3)
+        assert not rgb[ids < 0].any() and (rgb[ids >= 0] >= 0.2).all() and (rgb <= 1).all()
+        assert np.array_equal(rgb[0, 2], rgb[1, 1])  # id 1 twice
+        assert np.array_equal(
+            layer_as_rgb(layers, name, view=False), np.repeat(ids[..., None], 3, 2)
+        )
+    many = layer_as_rgb(
+        {"beauty": beauty(1, 256), "object_id": np.arange(256.0)[None]}, "object_id"
+    )
+    assert len(np.unique(many.reshape(-1, 3), axis=0)) == 256
+
+
+@pytest.mark.parametrize("suffix", LAYER_FORMATS)
+def test_rendered_ids_and_their_names_round_trip(tmp_path, suffix):
+    """A render's id layers and the names table of its metadata (tracer.io.metadata.id_names)
+    come back from a file: every id present names an object of the scene and its material."""
+    data = tiny_scene()
+    data["materials"]["blue"] = {"reflectance": [0.1, 0.1, 0.8]}
+    data["objects"][1]["material"] = "blue"
+    del data["objects"][1]["name"]  # named objects[1]
+    state = scene_from_file_model(SceneFile.model_validate(data), SCENES)
+    scene = compile_scene(state)
+    settings = override(state.render, spp=1, aovs=True)
+    camera = override(state.camera, width=24, height=16)
+    run = render_pixels(scene, 0, 24 * 16, camera, settings)
+    layers, _ = frame_layers(run.rgb.reshape(16, 24, 3), run.aov.reshape(16, 24, -1), settings)
+    names = id_names(state, settings)
+    path = write_layers(tmp_path / f"frame{suffix}", layers, {"renderer": "tilerender", **names})
+    back, metadata = read_layers(path)
+    assert metadata["ids"] == names["ids"] == json.loads(json.dumps(names["ids"]))
+    assert metadata["ids"]["object_id"] == {"0": "floor", "1": "objects[1]", "2": "lamp"}
+    assert metadata["ids"]["material_id"] == {"0": "grey", "1": "lamp", "2": "blue"}
+    for name in ID_LAYERS:
+        assert np.array_equal(bits(back[name]), bits(layers[name]))
+    objects, materials = back["object_id"], back["material_id"]
+    assert {-1, 0, 1} <= set(np.unique(objects).tolist())
+    for o, m in zip(objects[objects >= 0], materials[objects >= 0], strict=True):
+        node = state.nodes[int(o)]
+        assert metadata["ids"]["material_id"][str(int(m))] == node.material
+    assert np.array_equal(objects < 0, materials < 0)

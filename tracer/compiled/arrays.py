@@ -46,6 +46,13 @@ class SceneArrays(NamedTuple):
     """bool (I,): the instance's transform is exactly the identity (kernels skip it)."""
     inst_rt: np.ndarray
     """float64 (I, 2): ``(c1, c0)`` of ``transforms.round_trip_bound`` per instance."""
+    inst_object: np.ndarray
+    """int32 (I,): the scene node (object id) of the instance; for a baked static mesh -1 - its
+    first key in ``static_runs``."""
+    static_runs: np.ndarray
+    """int32 (R, 2): the baked static meshes' triangles as runs of one node each, ascending:
+    ``(first key, node)``, a triangle's key being its instance's base plus its index in the
+    mesh (``tri_prim``)."""
     tlas_bounds: np.ndarray
     """float32 (K, 24): the top-level 4-wide BVH over instance world boxes."""
     tlas_child: np.ndarray
@@ -136,6 +143,8 @@ def borrow_scene(s):
         borrowed(s.inst_material),
         borrowed(s.inst_identity),
         borrowed(s.inst_rt),
+        borrowed(s.inst_object),
+        borrowed(s.static_runs),
         borrowed(s.tlas_bounds),
         borrowed(s.tlas_child),
         borrowed(s.tlas_inst),

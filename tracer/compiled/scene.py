@@ -71,6 +71,8 @@ class MeshAccel:
     owner: np.ndarray | None = None
     """For the baked static mesh, int32 (T, 2) per triangle (mesh order): the scene node it came
     from and its index in that node's mesh. ``None`` for user meshes."""
+    node_runs: np.ndarray | None = None
+    """For the baked static mesh, int32 (nodes, 2): each node's first triangle and its id."""
     tri_uv: np.ndarray | None = None
     """float32 (T, 6), leaf order: each triangle's vertex UVs; ``None`` when the mesh has none
     (the baked static mesh has rows of zeros for the meshes without)."""
@@ -334,7 +336,8 @@ def _bake(signature: tuple, triangles: list, material_index: dict, cluster: int)
     label = "scene" if cluster == 0 else f"static cluster {cluster}"
     accel = _accel(signature, tri_verts, center, zero_area, np.concatenate(materials), uv, label)
     owner = np.stack([np.concatenate(owners), np.concatenate(locals_)], axis=1)
-    return dataclasses.replace(accel, owner=owner.astype(np.int32))
+    runs = np.stack([ends - [p.shape[0] for p in parts], [n.id for n, _, _ in signature]], axis=1)
+    return dataclasses.replace(accel, owner=owner.astype(np.int32), node_runs=runs.astype(np.int32))
 
 
 @jit
@@ -399,6 +402,14 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
         joined(material, (0,), np.int32),
         joined(uv, (0, 6), np.float32),
     )
+
+
+def object_tables(baked: list[MeshAccel], nodes: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """``SceneArrays.inst_object`` and ``static_runs``: what maps a hit to its scene node."""
+    bases = np.cumsum([0] + [accel.triangles for accel in baked])
+    runs = [a.node_runs + [b, 0] for a, b in zip(baked, bases, strict=False)] or [np.zeros((0, 2))]
+    inst_object = [n if n >= 0 else -1 - bases[-1 - n] for n in nodes]
+    return np.array(inst_object, np.int32), np.concatenate(runs).astype(np.int32)
 
 
 def _world_box(accel: MeshAccel, xform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -503,6 +514,7 @@ def compile_scene(
     inst_material = np.array([m for *_, m in inst], dtype=np.int32)
     inst_rt = np.array([round_trip_bound(m) for _, _, _, m, _ in inst], dtype=np.float64)
     inst_identity = np.array([np.array_equal(m, np.eye(4)) for _, _, _, m, _ in inst], np.bool_)
+    inst_object, static_runs = object_tables(baked, [n for n, *_ in inst])
 
     # The top level, over the instances' world boxes.
     boxes = [_world_box(meshes[key], xform[k]) for k, (_, key, _, _, _) in enumerate(inst)]
@@ -545,6 +557,8 @@ def compile_scene(
         inst_material=inst_material,
         inst_identity=inst_identity,
         inst_rt=inst_rt,
+        inst_object=inst_object,
+        static_runs=static_runs,
         tlas_bounds=tlas.node_bounds,
         tlas_child=tlas.node_child,
         tlas_inst=tlas.tri_prim,

@@ -204,6 +204,25 @@ def material_of(s, k, j):
 
 
 @jit_inline
+def object_of(s, k, j):
+    """Scene node (object id) of row ``j`` of instance ``k``: the instance's own, or for a
+    baked static mesh the node of the run (``static_runs``) that holds the row's triangle."""
+    o = s.inst_object[k]
+    if o >= 0:
+        return o
+    key = -1 - o + pick(s.tri_prim, s.inst_pool[k])[j]
+    lo = 0
+    hi = s.static_runs.shape[0]
+    while hi - lo > 1:  # the last run starting at or before ``key``
+        mid = (lo + hi) // 2
+        if s.static_runs[mid, 0] <= key:
+            lo = mid
+        else:
+            hi = mid
+    return s.static_runs[lo, 1]
+
+
+@jit_inline
 def surface(s, k, j, b0, b1, b2):
     """A point of instance ``k``'s triangle ``j`` at barycentrics (b0, b1, b2).
 

@@ -12,10 +12,15 @@ Per camera sample the path kernel (``tracer.integrators.path``) records, with th
   or ends, before such a vertex adds zero to both.
 - ``depth`` (the distance along the camera ray), ``position`` (the world-space point) and
   ``alpha`` (1 where the camera ray hits something) at the camera ray's hit; 0 where it misses.
+- ``object_id`` and ``material_id``: the scene node (a scene file's objects by their index) and
+  the material (its index in the scene's ``materials``) the camera ray of the pixel's first
+  sample in the render call hits; -1 where it misses.
 
-Each is the mean over the pixel's samples, like the beauty, so it is as independent of the
-frame's split and threads as the beauty. The kernel accumulates positions in render space;
-``world_positions`` adds the scene's origin where the camera rays hit.
+Each but the ids is the mean over the pixel's samples, like the beauty (a mean of ids means
+nothing): all are as independent of the frame's split and threads as the beauty. Whoever
+combines renders of several sample ranges takes the ids from the one with the frame's first
+sample (:data:`IDS`). The kernel accumulates positions in render space; ``world_positions``
+adds the scene's origin where the camera rays hit.
 """
 
 import numpy as np
@@ -32,8 +37,13 @@ NORMAL = 3
 DEPTH = 6
 POSITION = 7
 ALPHA = 10
-CHANNELS = 11
-"""Columns of the kernels' AOV output: albedo (3), normal (3), depth, position (3), alpha."""
+OBJECT_ID = 11
+MATERIAL_ID = 12
+CHANNELS = 13
+"""Columns of the kernels' AOV output: albedo (3), normal (3), depth, position (3), alpha,
+object id, material id."""
+IDS = slice(OBJECT_ID, MATERIAL_ID + 1)
+"""The id columns: a pixel's first sample's, not a mean (ids are exact in float32 below 2**24)."""
 
 LAYERS = {
     "albedo": slice(ALBEDO, ALBEDO + 3),
@@ -41,6 +51,8 @@ LAYERS = {
     "depth": DEPTH,
     "position": slice(POSITION, POSITION + 3),
     "alpha": ALPHA,
+    "object_id": OBJECT_ID,
+    "material_id": MATERIAL_ID,
 }
 """Each AOV layer's columns."""
 
@@ -78,5 +90,5 @@ def world_positions(aov: np.ndarray, origin: np.ndarray) -> None:
 
 def aov_layers(aov: np.ndarray) -> dict[str, np.ndarray]:
     """The AOV channels (H, W, CHANNELS) as named layers: (H, W, 3) for albedo, normal and
-    position, (H, W) for depth and alpha."""
+    position, (H, W) for depth, alpha and the ids."""
     return {name: np.ascontiguousarray(aov[..., columns]) for name, columns in LAYERS.items()}

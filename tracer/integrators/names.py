@@ -22,6 +22,16 @@ DENOISE_PREFILTER = ("auto", "on", "off")
 """``render.denoise_prefilter``'s choices: prefilter the denoiser's guides where they are noisy
 (``tracer.post.guides``), always, or never."""
 
-OUTPUT_LAYERS = ("beauty", "denoised", "albedo", "normal", "depth", "position", "alpha")
+OUTPUT_LAYERS = (
+    "beauty",
+    "denoised",
+    "albedo",
+    "normal",
+    "depth",
+    "position",
+    "alpha",
+    "object_id",
+    "material_id",
+)
 """A frame's layers (``tracer.post.frame_layers``), in the order files hold them: the beauty,
 the denoised beauty and the AOVs (``tracer.integrators.aov``)."""

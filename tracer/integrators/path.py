@@ -24,7 +24,7 @@ vertex code cost half of the kernel's compile time.
 import numpy as np
 
 from tracer.compiled.arrays import borrow_scene
-from tracer.geometry.scene_intersect import scene_closest, scene_occluded
+from tracer.geometry.scene_intersect import material_of, object_of, scene_closest, scene_occluded
 from tracer.integrators import aov, flags
 from tracer.integrators.aov import vertex_aov
 from tracer.integrators.vertex import SHADERS, camera_path
@@ -82,8 +82,9 @@ def path_kernel(materials: bool, lights: bool):
         ``out_cost`` int64 (rows, W) the work spent on it, ``out_rays`` int64 (rows, W) the rays
         traced for it (one per traversal: camera, continuation and shadow rays), and with the
         plan's ``flags.AOVS`` ``out_aov`` float32 (rows, W, ``aov.CHANNELS``) the mean of the
-        samples' AOVs (``tracer.integrators.aov``; untouched without it). ``mode`` is
-        ``vertex.PATH`` or ``vertex.WHITTED``; ``plan`` the effect flags (``integrators.flags``).
+        samples' AOVs and the ids of the first sample's hit (``tracer.integrators.aov``;
+        untouched without it). ``mode`` is ``vertex.PATH`` or ``vertex.WHITTED``; ``plan`` the
+        effect flags (``integrators.flags``).
         Threads call this with the same stride and different ``first``: interleaved blocks of
         ``PIXEL_BLOCK`` pixels balance lines of very different cost, and keep threads off each
         other's cache lines. ``stack_node`` (int32) and ``stack_t`` (float64) are this thread's
@@ -114,6 +115,8 @@ def path_kernel(materials: bool, lights: bool):
                 a_point = (0.0, 0.0, 0.0)
                 a_depth = 0.0
                 a_hits = 0
+                a_object = -1
+                a_material = -1
                 for sample in range(sample_start, sample_start + spp):
                     key = sample_key(p_key, sample)
                     o, d = camera_sample_ray(camera, width, height, x, y, key)
@@ -134,6 +137,9 @@ def path_kernel(materials: bool, lights: bool):
                                 a_depth += t
                                 a_point = (a_point[0] + p[0], a_point[1] + p[1], a_point[2] + p[2])
                                 a_hits += 1
+                                if sample == sample_start:
+                                    a_object = object_of(s, k, j)
+                                    a_material = material_of(s, k, j)
                             tint = (tint[0] * colour[0], tint[1] * colour[1], tint[2] * colour[2])
                             if final:
                                 a_albedo = (a_albedo[0] + tint[0], a_albedo[1] + tint[1],
@@ -171,6 +177,8 @@ def path_kernel(materials: bool, lights: bool):
                         out_aov[row, x, aov.POSITION + ch] = a_point[ch] / spp
                     out_aov[row, x, aov.DEPTH] = a_depth / spp
                     out_aov[row, x, aov.ALPHA] = a_hits / spp
+                    out_aov[row, x, aov.OBJECT_ID] = a_object
+                    out_aov[row, x, aov.MATERIAL_ID] = a_material
 
     trace_pixels.__qualname__ = f"trace_pixels_{'m' if materials else 'l'}{'o' if lights else 't'}"
     return jit(with_globals(trace_pixels, shade=SHADERS[(materials, lights)]))

@@ -1,11 +1,13 @@
 """A frame's layers (beauty, denoised, AOVs) in one file: a multilayer OpenEXR or a NumPy bundle.
 
 A frame's layers are a ``dict`` from the names in :data:`LAYERS` to float32 arrays, (H, W, 3),
-or (H, W) for ``depth`` and ``alpha``; ``beauty`` is required and every layer has the same H and
-W. The EXR names its channels as compositors (Nuke, Blender, OpenImageIO) read layers
+or (H, W) for ``depth``, ``alpha`` and the ids; ``beauty`` is required and every layer has the
+same H and W. The EXR names its channels as compositors (Nuke, Blender, OpenImageIO) read layers
 (:data:`EXR_CHANNELS`): the beauty is the default layer ``R``, ``G``, ``B``; depth is OpenEXR's
 standard ``Z``; alpha is a layer of its own (``alpha.A``), since the beauty (sky included) is
-not premultiplied by it.
+not premultiplied by it; an id is a one-value layer (``object_id.X``, as Blender names its
+``IndexOB.X``). What the ids name is the writer's to put in the metadata
+(``tracer.io.metadata.id_names``).
 The ``.npz`` holds one array per layer and the metadata JSON as a 0-d string array
 ``metadata``. Writes are atomic (``tracer.io.files``), like ``tracer.io.images``.
 """
@@ -25,8 +27,12 @@ LAYERS: dict[str, int] = {
     "depth": 1,
     "position": 3,
     "alpha": 1,
+    "object_id": 1,
+    "material_id": 1,
 }
 """The known layers, in file order, with their channel counts."""
+ID_LAYERS = ("object_id", "material_id")
+"""The layers of ids (exact integers, -1 where the camera ray misses), not colours."""
 
 EXR_CHANNELS: dict[str, tuple[str, ...]] = {
     "beauty": ("R", "G", "B"),
@@ -36,6 +42,8 @@ EXR_CHANNELS: dict[str, tuple[str, ...]] = {
     "depth": ("Z",),
     "position": ("position.X", "position.Y", "position.Z"),
     "alpha": ("alpha.A",),  # not the default layer's A: the beauty is not premultiplied
+    "object_id": ("object_id.X",),
+    "material_id": ("material_id.X",),
 }
 """Each layer's EXR channel names, in the order of the array's last axis."""
 
@@ -163,8 +171,9 @@ def layer_as_rgb(layers: dict[str, np.ndarray], name: str, view: bool = True) ->
     layers and ``position`` are as they are; ``normal`` is mapped from [-1, 1] to [0, 1]
     (``(n + 1) / 2``, for viewing only); ``depth`` is divided by its largest finite value (by 1
     if none is positive), clamped to [0, 1] (+inf is 1, NaN 0) and repeated in 3 channels;
-    ``alpha`` is repeated in 3 channels. With ``view=False`` (float formats) every layer keeps
-    its values: only one-channel layers are repeated in 3 channels."""
+    ``alpha`` is repeated in 3 channels; an id layer is false colour (:func:`id_colours`). With
+    ``view=False`` (float formats) every layer keeps its values: only one-channel layers are
+    repeated in 3 channels."""
     if name not in LAYERS or name not in layers:
         raise ValueError(
             f"no layer {name!r}; the layers present are " + (", ".join(layers) or "none")
@@ -176,6 +185,8 @@ def layer_as_rgb(layers: dict[str, np.ndarray], name: str, view: bool = True) ->
         return (array + np.float32(1.0)) * np.float32(0.5)
     if name == "alpha":
         return np.repeat(array[..., None], 3, axis=2)
+    if name in ID_LAYERS:
+        return id_colours(array)
     if name != "depth":
         return array.copy()
     finite = array[np.isfinite(array)]
@@ -183,3 +194,18 @@ def layer_as_rgb(layers: dict[str, np.ndarray], name: str, view: bool = True) ->
     scaled = array / np.float32(top if top > 0 else 1.0)
     scaled = np.clip(np.nan_to_num(scaled, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
     return np.repeat(scaled[..., None], 3, axis=2)
+
+
+def id_colours(ids: np.ndarray) -> np.ndarray:
+    """Float32 (H, W, 3) false colours of an id layer (H, W): each id its own colour, a hash
+    of it (the same in every file), in [0.2, 1] per channel; black where the id is negative
+    (nothing hit)."""
+    h = (ids.astype(np.int64) + 1).astype(np.uint32)
+    for shift, factor in ((16, 0x7FEB352D), (15, 0x846CA68B)):  # lowbias32 (C. Wellons)
+        h ^= h >> np.uint32(shift)
+        h *= np.uint32(factor)
+    h ^= h >> np.uint32(16)
+    channels = np.stack([(h >> np.uint32(8 * c)) & np.uint32(255) for c in range(3)], axis=-1)
+    colours = np.float32(0.2) + np.float32(0.8 / 255) * channels.astype(np.float32)
+    colours[ids < 0] = 0.0
+    return colours

@@ -3,6 +3,7 @@
 from importlib.metadata import PackageNotFoundError, version
 
 from tracer.scene import format as fmt
+from tracer.scene.model import SceneState
 
 
 def renderer_version() -> str:
@@ -35,3 +36,16 @@ def image_metadata(
         "executor": executor,
         **extra,
     }
+
+
+def id_names(state: SceneState, settings: fmt.RenderSettings) -> dict:
+    """What the id layers (``tracer.integrators.aov``) of a render with ``settings`` name, for
+    its files' metadata: ``{"ids": {"object_id": {id: name}, "material_id": {id: name}}}``, ids
+    as JSON's string keys: the scene's objects (nodes with a mesh, by id: a scene file's objects
+    by their index, unnamed ones ``objects[i]``) and its materials in their order; ``{}`` when
+    the render keeps no AOV layers."""
+    if not settings.aovs:
+        return {}
+    objects = {str(node.id): node.name for node in state.geometry_nodes()}
+    materials = {str(i): name for i, name in enumerate(state.materials)}
+    return {"ids": {"object_id": objects, "material_id": materials}}

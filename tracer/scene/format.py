@@ -286,8 +286,9 @@ class RenderSettings(Strict):
     )
     aovs: bool = Field(
         default=False,
-        description="Also render the AOV layers albedo, normal, depth, position and alpha from "
-        "the same paths (path, direct, whitted and cost integrators; docs/outputs.md)",
+        description="Also render the AOV layers albedo, normal, depth, position, alpha, "
+        "object_id and material_id from the same paths (path, direct, whitted and cost "
+        "integrators; docs/outputs.md)",
     )
     denoise: Literal[DENOISE] = Field(
         default="off",
