@@ -13,7 +13,7 @@ import numpy as np
 
 from api.settings import Settings
 from cluster.jobs import quality_goal, with_overrides
-from cluster.progressive import ProgressiveFrame, part_request
+from cluster.progressive import DenoisedTarget, ProgressiveFrame, part_request
 from cluster.scene_graph import SceneGraph
 from cluster.turns import TurnedFrame, TurnSizer, spot_checks_in_turns
 from tracer.accuracy.spot_check import SpotCheck
@@ -202,7 +202,11 @@ class JobRun:
         camera = request.camera
         sizer = self.sizer
         p = self.progressive = ProgressiveFrame(
-            camera.width, camera.height, self.goal, clock=lambda: sizer.seconds_total
+            camera.width,
+            camera.height,
+            self.goal,
+            clock=lambda: sizer.seconds_total,
+            denoised=DenoisedTarget.of(request.settings, self.goal),
         )
         step = p.next_part()
         while step is not None:

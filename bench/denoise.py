@@ -5,7 +5,8 @@ A sample scene (``--scene``, the Cornell box by default) is rendered at each siz
 as noisy as a render's). With ``--render-spp``, a render of each frame at that spp is timed
 with and without AOVs (what recording them costs, and the denoiser's share of a render). Then,
 after one warm-up each, every contender (size x quality x
-beauty only / both guides prefiltered) denoises its frame once per round, in turns, for
+beauty only / both guides as they are / both prefiltered) denoises its frame once per round,
+in turns, for
 ``--repeats`` rounds. Reported: median and best seconds, and frames per second at the smallest
 size. The first call of the process is timed apart (it creates OIDN's device). With
 ``--reference-spp``, the smallest frame's relative MSE against a render at that spp says what
@@ -29,7 +30,12 @@ from common import (
     write_results,
 )
 
-GUIDES = ("beauty", "guided")  # beauty only; albedo and normal, prefiltered
+GUIDES = {
+    "beauty": "none",
+    "guided": "albedo+normal",
+    "prefiltered": "albedo+normal, prefiltered",
+}
+"""The contenders' guides: none, the AOVs as they are, the AOVs prefiltered."""
 
 
 def size(text: str) -> tuple[int, int]:
@@ -153,10 +159,17 @@ def main(argv: list[str] | None = None) -> None:
             for guides in GUIDES:
                 name = f"{s[0]}x{s[1]} {quality} {guides}"
                 f = frames[s]
-                extra = (f["albedo"], f["normal"]) if guides == "guided" else ()
+                extra = (f["albedo"], f["normal"]) if guides != "beauty" else ()
+                prefilter = guides == "prefiltered"
 
-                def run(_round, f=f, extra=extra, quality=quality):
-                    return denoise(f["path"], *extra, quality=quality, threads=args.threads)
+                def run(_round, f=f, extra=extra, quality=quality, prefilter=prefilter):
+                    return denoise(
+                        f["path"],
+                        *extra,
+                        quality=quality,
+                        threads=args.threads,
+                        prefilter=prefilter,
+                    )
 
                 contenders[name] = Contender(run)
                 work[name] = 1.0  # frames
@@ -189,7 +202,7 @@ def main(argv: list[str] | None = None) -> None:
             (
                 f"{s[0]}x{s[1]}",
                 quality,
-                "albedo+normal, prefiltered" if guides == "guided" else "none",
+                GUIDES[guides],
                 f"{measured.median_seconds:.3f}",
                 f"{measured.best_seconds:.3f}",
                 f"{1.0 / measured.median_seconds:.1f}" if s == first else "",

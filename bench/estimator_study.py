@@ -45,13 +45,14 @@ from pathlib import Path
 import numpy as np
 from common import REPO_ROOT, RESULTS_DIR, console, machine_info, print_table, write_results
 
-from cli.accuracy import StudyOptions, calibration, scene_name, spp_levels, study_size
+from cli.accuracy import StudyOptions, calibration, scene_name, study_size
 from cli.accuracy_reference import (
     Reference,
     independent_reference,
     own_reference,
     reference_settings,
 )
+from cli.accuracy_sweep import spp_levels
 from cli.commands.samples import sample_scene_files
 from tracer.accuracy import error_estimate as ee
 from tracer.accuracy.spot_check import SpotCheckLedger, render_spot_checks

@@ -4,16 +4,15 @@ Every scene is rendered small (about ``pixels`` pixels, a whole fraction of its 
 this process, and every image is compared with the scene's one reference
 (:mod:`cli.accuracy_reference`), so bias shows as error:
 
-1. **Sweep.** Each configuration (:func:`configurations`: integrators, depths, Russian roulette
-   and the effect plan on and off) takes samples 1, 2, 4, ... ``max_spp`` in doubling waves
-   over disjoint sample ranges; the configurations take turns wave by wave (slow drifts of a
-   shared machine hit them alike). After each wave the mean so far is measured: relative MSE,
-   RMSE, PSNR, SSIM and FLIP (``cli.accuracy_metrics.measure``), against the seconds spent,
-   the rays traced (camera, continuation, shadow and occlusion rays; :func:`render_counted`)
-   and the kernel's work (BVH node visits plus triangle tests). A denoised configuration
-   renders nothing of its own: after each wave it denoises its source's mean so far (which
-   records the albedo and normal AOVs), and its seconds are the source's plus that one
-   denoising's (a render denoises once, at the end).
+1. **Sweep** (:mod:`cli.accuracy_sweep`). Each configuration (integrators, depths, Russian
+   roulette and the effect plan on and off, denoising) takes samples 1, 2, 4, ... ``max_spp``
+   in doubling waves over disjoint sample ranges; the configurations take turns wave by wave
+   (slow drifts of a shared machine hit them alike). After each wave the mean so far is
+   measured: relative MSE, RMSE, PSNR, SSIM and FLIP (``cli.accuracy_metrics.measure``),
+   against the seconds spent, the rays traced and the kernel's work (BVH node visits plus
+   triangle tests). A denoised configuration renders nothing of its own: after each wave it
+   denoises its source's mean so far (which records the albedo and normal AOVs), and its
+   seconds are the source's plus that one denoising's (a render denoises once, at the end).
 2. **Effect costs** after Reiter's eq. 5.1 (:func:`effect_costs`).
 3. **Time to quality**: seconds to reach a relative MSE (``cli.accuracy_metrics.time_to``).
 4. **Calibration** of the online error estimate against the true error (:func:`calibration`).
@@ -27,18 +26,28 @@ import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from cli.accuracy_metrics import TARGETS, measure, time_to
 from cli.accuracy_reference import (
     Reference,
     independent_reference,
     own_reference,
     reference_settings,
 )
+from cli.accuracy_sweep import (
+    DEFAULT_CONFIG,
+    DENOISED_STRIP,
+    Config,
+    RenderClock,
+    configurations,
+    render_counted,
+    spp_levels,
+    sweep,
+)
+from tracer.accuracy.denoised_error import denoise_and_estimate
 from tracer.accuracy.error_estimate import (
     PARTS,
     estimate_rel_error,
@@ -48,15 +57,8 @@ from tracer.accuracy.error_estimate import (
 from tracer.accuracy.spot_check import SpotCheckLedger, render_spot_checks
 from tracer.compiled.scene import CompiledScene, compile_scene
 from tracer.integrators.aov import CHANNELS, aov_layers
-from tracer.integrators.effects import EffectPlan, effect_plan
-from tracer.integrators.flags import (
-    EFFECTS,
-    LIGHT_SAMPLES,
-    MATERIAL_BUILD,
-    MATERIAL_EFFECTS,
-    NO_MIS,
-    SHADOWS,
-)
+from tracer.integrators.effects import effect_plan
+from tracer.integrators.flags import MATERIAL_BUILD, MATERIAL_EFFECTS, SHADOWS
 from tracer.kernel.threads import default_threads
 from tracer.post.guides import guides_are_noisy
 from tracer.render import render_image
@@ -65,13 +67,6 @@ from tracer.scene.loader import load_scene
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO_ROOT / "bench" / "results" / "accuracy-cache"
-STRIP_SPP = (1, 4, 16, 64, 256)
-"""Sample counts of the default configuration shown beside the reference in image strips."""
-DEFAULT_CONFIG = "path"
-AOV_CONFIG = "path-aov"
-"""The default configuration recording the AOVs: the denoised configurations' source."""
-DENOISED_STRIP = "path-oidn-high"
-"""The denoised configuration whose images the strips show under the default's."""
 
 
 @dataclass(frozen=True)
@@ -104,79 +99,6 @@ class StudyOptions:
                 raise ValueError(f"{name} must be at least 1")
 
 
-@dataclass(frozen=True)
-class Config:
-    """One configuration of the sweep: settings changes, effects dropped from the plan and
-    sampling switches added to it."""
-
-    name: str
-    label: str
-    changes: dict = field(default_factory=dict)
-    drop: int = 0
-    """Effect flags removed from the scene's plan (``tracer.integrators.flags``)."""
-    add: int = 0
-    """Kernel switches added to the plan (``tracer.integrators.flags.NO_MIS``)."""
-    denoise: str = "off"
-    """An OIDN quality: the configuration denoises the images of ``source`` (renders none)."""
-    source: str | None = None
-
-    def settings(self, base: fmt.RenderSettings) -> fmt.RenderSettings:
-        return fmt.override(base, **self.changes)
-
-    def plan(self, scene: CompiledScene, settings: fmt.RenderSettings) -> EffectPlan:
-        plan = effect_plan(scene, settings)
-        if not self.drop and not self.add:
-            return plan
-        reasons = {**plan.reasons, **{n: "dropped by the study" for n in names(self.drop)}}
-        return EffectPlan(plan.flags & ~self.drop | self.add, reasons)
-
-
-def names(flags: int) -> list[str]:
-    """Names of the effect flags in ``flags``."""
-    return [name for name, bit in EFFECTS.items() if flags & bit]
-
-
-def configurations(base: fmt.RenderSettings) -> list[Config]:
-    """The sweep's configurations around the scene's own settings ``base`` (the ``path``
-    configuration): path tracing at depths 1 to 16, without Russian roulette, with every effect
-    (no plan), with light samples but no MIS, with BSDF sampling only (no light samples, so no
-    MIS); direct light; Whitted; ambient occlusion; and ``path`` recording its AOVs, denoised
-    at OIDN's ``fast`` and ``high`` qualities guided by them."""
-    depth = base.max_depth
-    configs = [Config(DEFAULT_CONFIG, f"path, NEE + MIS, depth {depth} (the scene's)")]
-    configs += [
-        Config(
-            f"path-d{d}", f"path, depth {d}", {"max_depth": d, "rr_depth": min(base.rr_depth, d)}
-        )
-        for d in (1, 2, 3, 4, 8, 16)
-        if d != depth
-    ]
-    configs += [
-        Config("path-no-rr", "path, no Russian roulette", {"rr_depth": depth}),
-        Config("path-no-plan", "path, every effect (no effect plan)", {"effect_plan": False}),
-        Config("path-no-mis", "path, light samples without MIS", add=NO_MIS),
-        Config(
-            "path-bsdf",
-            "path, BSDF sampling only (no light samples, no MIS)",
-            drop=LIGHT_SAMPLES | SHADOWS,
-        ),
-        Config("direct", "direct light (NEE + MIS, two vertices)", {"integrator": "direct"}),
-        Config("whitted", "Whitted (direct light, specular recursion)", {"integrator": "whitted"}),
-        Config("ao", "ambient occlusion (not radiance: all bias)", {"integrator": "ao"}),
-        Config(AOV_CONFIG, "path, recording the AOVs (the denoiser's guides)", {"aovs": True}),
-    ]
-    configs += [
-        Config(
-            f"path-oidn-{quality}",
-            f"path, denoised (OIDN {quality}, albedo + normal guides)",
-            denoise=quality,
-            source=AOV_CONFIG,
-        )
-        for quality in ("fast", "high")
-    ]
-    return configs
-
-
 def study_size(width: int, height: int, pixels: int) -> tuple[int, int]:
     """The scene's image size divided by the whole factor ``k`` that brings it closest to
     ``pixels`` (an independent reference at the scene's size then averages ``k x k`` blocks);
@@ -194,195 +116,7 @@ def study_size(width: int, height: int, pixels: int) -> tuple[int, int]:
     return max(1, round(width * scale)), max(1, round(height * scale))
 
 
-def spp_levels(max_spp: int) -> list[int]:
-    """1, 2, 4, ..., ``max_spp``."""
-    return [1 << k for k in range(max_spp.bit_length())]
-
-
-def render_counted(
-    scene: CompiledScene,
-    camera: fmt.Camera,
-    settings: fmt.RenderSettings,
-    sample_start: int,
-    threads: int,
-    plan: EffectPlan,
-) -> tuple[np.ndarray, int, int, np.ndarray | None]:
-    """A frame (:func:`tracer.render.render_image`) with the rays it traced, the kernel work
-    it took and its AOVs when the settings record them: ``(rgb, rays, work, aov)``."""
-    rays = []
-    aov = (
-        np.empty((camera.height, camera.width, CHANNELS), np.float32)
-        if settings.renders_aovs
-        else None
-    )
-
-    def on_lines(lines) -> None:
-        rays.append(int(lines.rays.sum()))
-        if aov is not None:
-            aov[lines.y0 : lines.y1] = lines.aov
-
-    rgb, cost = render_image(
-        scene,
-        camera,
-        settings,
-        sample_start=sample_start,
-        threads=threads,
-        plan=plan,
-        on_lines=on_lines,
-    )
-    return rgb, sum(rays), int(cost.sum()), aov
-
-
-def denoised_image(
-    image: np.ndarray, aov: np.ndarray, quality: str, prefilter: bool, threads: int
-) -> np.ndarray:
-    """``image`` denoised at ``quality``, guided by the albedo and normal of ``aov``."""
-    from tracer.post.denoise import denoise
-
-    layers = aov_layers(aov.astype(np.float32))
-    done = denoise(
-        image.astype(np.float32),
-        layers["albedo"],
-        layers["normal"],
-        quality=quality,
-        threads=threads,
-        prefilter=prefilter,
-    )
-    return done.image
-
-
-class RenderClock:
-    """Render time that a busy shared machine does not inflate: the process's CPU seconds
-    (every render thread's) divided by the thread count, which is the wall-clock time of the
-    same render on an idle machine with balanced threads. Wall-clock seconds are kept too."""
-
-    def __init__(self, threads: int) -> None:
-        self.threads = threads
-
-    def __enter__(self) -> "RenderClock":
-        self._cpu, self._wall = time.process_time(), time.perf_counter()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.seconds = (time.process_time() - self._cpu) / self.threads
-        self.wall_seconds = time.perf_counter() - self._wall
-
-
 # --- the parts of a scene's study --------------------------------------------------------------
-
-
-@dataclass
-class _Run:
-    """A configuration's running sums during the sweep."""
-
-    config: Config
-    settings: fmt.RenderSettings
-    plan: EffectPlan
-    total: np.ndarray
-    aov_total: np.ndarray | None = None
-    spp: int = 0
-    seconds: float = 0.0
-    wall_seconds: float = 0.0
-    rays: int = 0
-    work: int = 0
-    levels: list = field(default_factory=list)
-
-
-def sweep(
-    scene: CompiledScene,
-    camera: fmt.Camera,
-    base: fmt.RenderSettings,
-    ref: Reference,
-    floor: float,
-    options: StudyOptions,
-    on_samples: Callable[[int], None],
-    prefilter: bool = False,
-) -> tuple[dict, dict[str, dict[int, np.ndarray]]]:
-    """Run every configuration through the spp levels, interleaved wave by wave (a denoised one
-    after its source, its guides prefiltered when ``prefilter``); returns the per-configuration
-    records and the images at ``STRIP_SPP`` of the default configuration and of
-    ``DENOISED_STRIP``, by configuration name."""
-    threads = options.threads or default_threads()
-    runs = []
-    for config in configurations(base):
-        settings = config.settings(base)
-        plan = config.plan(scene, settings)
-        runs.append(_Run(config, settings, plan, np.zeros((camera.height, camera.width, 3))))
-        if config.source is None:  # compile or load the kernel, untimed
-            tiny = fmt.override(camera, width=1, height=1)
-            render_image(
-                scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=options.threads
-            )
-    by_name = {run.config.name: run for run in runs}
-    strips: dict[str, dict[int, np.ndarray]] = {DEFAULT_CONFIG: {}, DENOISED_STRIP: {}}
-    levels = spp_levels(options.max_spp)
-    for index, level in enumerate(levels):
-        flip = index % options.flip_every == 0 or index == len(levels) - 1
-        for run in runs:
-            if run.config.source is None:
-                n = level - run.spp
-                with RenderClock(threads) as clock:
-                    rgb, rays, work, aov = render_counted(
-                        scene, camera, fmt.override(run.settings, spp=n), run.spp, threads, run.plan
-                    )
-                run.seconds += clock.seconds
-                run.wall_seconds += clock.wall_seconds
-                run.total += rgb.astype(np.float64) * n
-                if aov is not None:
-                    run.aov_total = aov.astype(np.float64) * n + (
-                        0.0 if run.aov_total is None else run.aov_total
-                    )
-                run.rays += rays
-                run.work += work
-                image = run.total / level
-                seconds, wall_seconds = run.seconds, run.wall_seconds
-                on_samples(n)
-            else:  # the source rendered this level already: denoise its mean once
-                source = by_name[run.config.source]
-                with RenderClock(threads) as clock:
-                    image = denoised_image(
-                        source.total / level,
-                        source.aov_total / level,
-                        run.config.denoise,
-                        prefilter,
-                        threads,
-                    )
-                seconds = source.seconds + clock.seconds
-                wall_seconds = source.wall_seconds + clock.wall_seconds
-                run.rays, run.work = source.rays, source.work
-            run.spp = level
-            record = {
-                "spp": level,
-                "seconds": seconds,
-                "wall_seconds": wall_seconds,
-                "rays": run.rays,
-                "mrays_per_second": run.rays / seconds / 1e6 if seconds > 0 else None,
-                "work": run.work,
-            }
-            run.levels.append(record | measure(image, ref, floor, flip))
-            if run.config.name in strips and level in STRIP_SPP:
-                strips[run.config.name][level] = image.astype(np.float32)
-    results = {}
-    for run in runs:
-        data = {
-            "label": run.config.label,
-            "settings": {
-                k: v
-                for k, v in run.settings.model_dump(mode="json").items()
-                if k in ("integrator", "max_depth", "rr_depth", "effect_plan")
-            },
-            "effects": run.plan.names(),
-        }
-        if run.config.source is not None:
-            data["denoise"] = {
-                "quality": run.config.denoise,
-                "source": run.config.source,
-                "prefiltered": prefilter,
-            }
-        data["levels"] = run.levels
-        data["time_to"] = {f"{t:g}": time_to(run.levels, t) for t in TARGETS}
-        results[run.config.name] = data
-    return results, strips
 
 
 EFFECT_STAGES = (
@@ -488,6 +222,7 @@ def calibration(
     floor: float,
     options: StudyOptions,
     on_samples: Callable[[int], None],
+    prefilter: bool = False,
 ) -> list[dict]:
     """The online estimate against the true error: the reference's own settings (so the
     render is unbiased against it) with another seed, ``PARTS`` independent parts that double
@@ -496,10 +231,15 @@ def calibration(
     (``tracer.accuracy.spot_check``; None where it says the error is not estimable yet), the pixels
     checked, and the true relative error of their mean (the
     reference's noise floor subtracted); with the render seconds of the parts so far and of
-    the level's spot checks (:class:`RenderClock`)."""
-    settings = fmt.override(ref.settings, seed=options.seed + 1)
+    the level's spot checks (:class:`RenderClock`). And for the mean denoised (``high``, the
+    AOVs guiding, prefiltered when ``prefilter``): the estimate of its error
+    (``tracer.accuracy.denoised_error``; None where not given), its true error and the seconds
+    of the two denoisings that takes."""
+    settings = fmt.override(ref.settings, seed=options.seed + 1, aovs=True)
+    plan = effect_plan(scene, settings)
     threads = options.threads or default_threads()
     sums = np.zeros((PARTS, camera.height, camera.width, 3))
+    aov_sums = np.zeros((camera.height, camera.width, CHANNELS))
     per_part = 0
     seconds, work = 0.0, 0.0
     ledger = SpotCheckLedger(camera.width * camera.height)
@@ -510,16 +250,18 @@ def calibration(
         n = level // PARTS - per_part
         for k in range(PARTS):
             with RenderClock(threads) as clock:
-                rgb, cost = render_image(
+                rgb, _, part_work, aov = render_counted(
                     scene,
                     camera,
                     fmt.override(settings, spp=n),
-                    sample_start=PARTS * per_part + k * n,
-                    threads=threads,
+                    PARTS * per_part + k * n,
+                    threads,
+                    plan,
                 )
             seconds += clock.seconds
-            work += float(cost.sum())
+            work += float(part_work)
             sums[k] += rgb.astype(np.float64) * n
+            aov_sums += aov.astype(np.float64) * n
             on_samples(n)
         per_part += n
         parts = sums / per_part
@@ -540,6 +282,12 @@ def calibration(
             check_seconds = clock.seconds
         checks = ledger.checks()
         true_mse = rel_mse(parts.mean(axis=0), ref.mean) - floor
+        guides = aov_layers((aov_sums / level).astype(np.float32))
+        with RenderClock(threads) as clock:
+            denoised, denoised_estimate = denoise_and_estimate(
+                parts, per_part, guides["albedo"], guides["normal"], "high", prefilter, level
+            )
+        denoised_mse = rel_mse(denoised, ref.mean) - floor
         records.append(
             {
                 "spp": level,
@@ -548,6 +296,11 @@ def calibration(
                 "checked": 0 if checks is None else len(checks.pixels),
                 "seconds": seconds,
                 "check_seconds": check_seconds,
+                "denoised": {
+                    "estimated": denoised_estimate,
+                    "true": math.sqrt(max(denoised_mse, 0.0)),
+                    "seconds": clock.seconds,
+                },
             }
         )
     return records
@@ -608,13 +361,23 @@ def study_scene(
     floor = noise_floor(ref.mean, ref.var_of_mean)
     on_phase("sweep")
     noisy_guides = guides_are_noisy(state.materials.values(), camera)
+    threads = options.threads or default_threads()
     configs_result, strips = sweep(
-        scene, camera, base, ref, floor, options, on_samples, prefilter=noisy_guides
+        scene,
+        camera,
+        base,
+        ref,
+        floor,
+        options.max_spp,
+        threads,
+        on_samples,
+        prefilter=noisy_guides,
+        flip_every=options.flip_every,
     )
     on_phase("effect costs")
     costs = effect_costs(scene, camera, base, ref, floor, options, on_samples)
     on_phase("calibration")
-    calib = calibration(scene, camera, ref, floor, options, on_samples)
+    calib = calibration(scene, camera, ref, floor, options, on_samples, prefilter=noisy_guides)
     result = {
         "scene": str(path.relative_to(REPO_ROOT)) if path.is_relative_to(REPO_ROOT) else str(path),
         "size": [width, height],

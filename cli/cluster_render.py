@@ -115,8 +115,13 @@ def describe_progressive(progress: ProgressiveFrame) -> str:
         "max_spp": "--max-spp reached",
     }[progress.stopped]
     error = "not estimable yet" if progress.error is None else f"{progress.error:.2%}"
+    of = (
+        " of the denoised image"
+        if progress.waves and progress.waves[-1].error_of == "denoised"
+        else ""
+    )
     return (
-        f"{progress.spp} spp in {len(progress.waves)} waves, estimated error "
+        f"{progress.spp} spp in {len(progress.waves)} waves, estimated error{of} "
         f"{error}{target}, {reason}"
     )
 

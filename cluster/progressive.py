@@ -16,6 +16,11 @@ pixel, seen by one part) are *spot-checked* before the estimate: rendered again,
 independently, to ``SPOT_CHECK_FACTOR`` times the frame's samples, topping up their checks of
 earlier waves (``tracer.accuracy.spot_check``).
 
+A frame that is to be denoised (:class:`DenoisedTarget`) measures the target on the denoised
+image instead, once its parts are deep enough for that estimate
+(``tracer.accuracy.denoised_error``): each wave's mean is denoised and its error estimated; until
+then, the beauty's estimate decides.
+
 :class:`ProgressiveFrame` is the state and the rules, with no Ray in it (a caller may drive it
 one part at a time, as the service does between other work); :func:`progressive_step` renders
 its next part through a :class:`cluster.coordinator.Coordinator`, and :func:`render_progressive`
@@ -32,9 +37,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tracer.accuracy.denoised_error import denoise_and_estimate
 from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
 from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
-from tracer.integrators.aov import CHANNELS, IDS
+from tracer.integrators.aov import CHANNELS, IDS, aov_layers
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
@@ -54,8 +60,9 @@ prediction falls just short about half the time, which costs a whole extra wave.
 @dataclass(frozen=True)
 class Goal:
     """When a progressive frame stops: at ``target_error`` (estimated relative RMS error,
-    ``tracer.accuracy.error_estimate``), after ``time_budget`` seconds, or at ``max_spp`` samples
-    per pixel, whichever comes first. At least one wave (``PARTS`` spp) is always rendered."""
+    ``tracer.accuracy.error_estimate``; of the denoised frame where :class:`DenoisedTarget` says
+    so), after ``time_budget`` seconds, or at ``max_spp`` samples per pixel, whichever comes
+    first. At least one wave (``PARTS`` spp) is always rendered."""
 
     target_error: float | None = None
     time_budget: float | None = None
@@ -72,6 +79,24 @@ class Goal:
             raise ValueError(f"time budget must be a positive number, got {self.time_budget}")
         if self.max_spp < PARTS:
             raise ValueError(f"max_spp must be at least {PARTS} (one wave), got {self.max_spp}")
+
+
+@dataclass(frozen=True)
+class DenoisedTarget:
+    """A target error measured on the frame denoised at ``quality`` (its guides prefiltered
+    when ``prefilter``), as the frame's output will be."""
+
+    quality: str
+    prefilter: bool
+
+    @classmethod
+    def of(cls, settings: fmt.RenderSettings, goal: Goal) -> DenoisedTarget | None:
+        """The target of a frame rendered with ``settings`` to ``goal``: None unless it has a
+        target error and is denoised with guides (``denoise_prefilter`` ``auto`` left unresolved
+        counts as on)."""
+        if goal.target_error is None or settings.denoise == "off" or not settings.renders_aovs:
+            return None
+        return cls(settings.denoise, settings.denoise_prefilter != "off")
 
 
 @dataclass(frozen=True)
@@ -95,6 +120,8 @@ class WaveRecord:
     """Seconds since the frame started."""
     checked: int = 0
     """Pixels spot-checked for the estimate."""
+    error_of: str = "beauty"
+    """Which image ``error`` is of: the ``beauty`` or the ``denoised`` one."""
 
 
 @dataclass
@@ -111,6 +138,8 @@ class ProgressiveFrame:
     height: int
     goal: Goal
     clock: Callable[[], float] = time.monotonic
+    denoised: DenoisedTarget | None = None
+    """Measure the target on the denoised frame (the parts must carry AOVs)."""
     sums: np.ndarray = field(init=False, repr=False)
     """Per part, the sum of its samples' images, float64 (PARTS, H, W, 3)."""
     part_spp: int = 0
@@ -182,6 +211,7 @@ class ProgressiveFrame:
             "spp": self.spp,
             "waves": len(self.waves),
             "spot_checks": self.waves[-1].checked if self.waves else 0,
+            "error_of": self.waves[-1].error_of if self.waves else None,
             "stopped": self.stopped,
         }
 
@@ -258,9 +288,25 @@ class ProgressiveFrame:
 
     def _end_wave(self) -> None:
         checks = self._ledger.checks()
-        self.error = estimate_rel_error(self.sums / self.part_spp, checks=checks)
+        parts = self.sums / self.part_spp
+        self.error = estimate_rel_error(parts, checks=checks)
+        error_of = "beauty"
+        target = self.denoised
+        if target is not None and self.aov_sums is not None:
+            guides = aov_layers(self.aov)
+            _, denoised_error = denoise_and_estimate(
+                parts,
+                self.part_spp,
+                guides["albedo"],
+                guides["normal"],
+                target.quality,
+                target.prefilter,
+                seed=self.spp,
+            )
+            if denoised_error is not None:
+                self.error, error_of = denoised_error, "denoised"
         checked = 0 if checks is None else len(checks.pixels)
-        self.waves.append(WaveRecord(self.spp, self.error, self.elapsed, checked))
+        self.waves.append(WaveRecord(self.spp, self.error, self.elapsed, checked, error_of))
         self._check_stop()
 
     def _check_stop(self) -> None:
@@ -339,7 +385,12 @@ def render_progressive(
     the latest part, its timings and effect plan)."""
     state = coordinator.graph.state
     request = FrameRequest(frame, state.camera, state.render)
-    progress = ProgressiveFrame(state.camera.width, state.camera.height, goal)
+    progress = ProgressiveFrame(
+        state.camera.width,
+        state.camera.height,
+        goal,
+        denoised=DenoisedTarget.of(state.render, goal),
+    )
     done = None
     while not progress.done:
         part = progressive_step(coordinator, progress, request)

@@ -10,6 +10,7 @@ from cli.in_process import render_to_file
 from cli.output import check_layer_choice, output_path, stderr
 from cluster.jobs import quality_goal, with_overrides
 from cluster.progressive import DEFAULT_MAX_SPP, PARTS, Goal
+from tracer.accuracy.denoised_error import MIN_PART_SPP
 from tracer.compiled.scene import compile_scene
 from tracer.post.denoise import DenoiserUnavailable, require_denoiser
 from tracer.scene import format as fmt
@@ -73,8 +74,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 TARGET_WITH_DENOISE = (
-    "note: --target-error is the beauty's estimated error; the denoised image's is not "
-    "estimated (usually lower, but a denoiser's bias can leave it higher: docs/denoising.md)"
+    f"note: with --denoise, --target-error is the denoised image's estimated error from "
+    f"{PARTS * MIN_PART_SPP} spp on; before that, the beauty's estimate decides "
+    "(docs/denoising.md)"
 )
 
 

@@ -12,22 +12,19 @@ import numpy as np
 import pytest
 
 from cli import main as cli_main
-from cli.accuracy import (
-    AOV_CONFIG,
-    DEFAULT_CONFIG,
-    StudyOptions,
-    calibration,
-    configurations,
-    denoised_image,
-    render_counted,
-    study_scene,
-    study_size,
-)
+from cli.accuracy import StudyOptions, calibration, study_scene, study_size
 from cli.accuracy_metrics import bias_variance, measure, time_to
 from cli.accuracy_reference import block_mean, independent_reference, own_reference
 from cli.accuracy_report import REPORT_END, REPORT_START, load_previous, splice, write_report
+from cli.accuracy_sweep import (
+    AOV_CONFIG,
+    DEFAULT_CONFIG,
+    configurations,
+    denoised_image,
+    render_counted,
+)
 from tests.helpers import CORNELL, SCENES
-from tracer.accuracy.error_estimate import noise_floor
+from tracer.accuracy.error_estimate import PARTS, noise_floor
 from tracer.compiled.scene import compile_scene
 from tracer.integrators.effects import effect_plan
 from tracer.scene import format as fmt
@@ -156,6 +153,19 @@ def test_denoising_pays_at_the_study_size(quality):
         raw = measure(rgb, ref, floor, False)["rel_mse"]
         denoised = measure(denoised_image(rgb, aov, quality, False, 2), ref, floor, False)
         assert denoised["rel_mse"] < raw / 4, (spp, denoised["rel_mse"], raw)
+
+
+def test_calibration_records_the_denoised_estimate(study):
+    """Every calibration level records the denoised mean's true error, and its estimate from
+    ``MIN_PART_SPP`` samples per part on (None below); the denoisings take time."""
+    from tracer.accuracy.denoised_error import MIN_PART_SPP
+
+    _, result, _ = study
+    for record in result["calibration"]:
+        denoised = record["denoised"]
+        assert denoised["true"] > 0 and denoised["seconds"] > 0
+        given = record["spp"] // PARTS >= MIN_PART_SPP
+        assert (denoised["estimated"] is not None) is given, record
 
 
 def test_sweep_counts_rays(study):
@@ -363,6 +373,8 @@ def test_report_files(study, tmp_path):
     assert "old" not in text and "](accuracy/calibration.png)" in text
     assert "| `path-d2`: path, depth 2 |" in text
     assert "### Time to quality with the denoiser" in text and "| cornell-box |" in text
+    assert "### Calibration of the denoised image's error estimate" in text
+    assert (tmp_path / "accuracy" / "calibration-denoised.png").is_file()
     loaded = json.loads((tmp_path / "out" / "accuracy.json").read_text())
     assert loaded["scenes"]["cornell-box"]["size"] == [32, 32]
     again, again_images = load_previous(tmp_path / "out")

@@ -186,8 +186,8 @@ def test_the_guides_are_prefiltered_where_they_are_noisy(capsys, tmp_path, tiny_
 
 
 def test_a_target_error_with_denoising_says_what_it_estimates(capsys, tmp_path, tiny_scene_file):
-    """--target-error with --denoise renders in waves to the beauty's estimated error and says
-    plainly that the denoised image's error is not estimated."""
+    """--target-error with --denoise renders in waves and says plainly which image's error
+    decides: at these few samples, the beauty's."""
     out = tmp_path / "frame.npz"
     code, _, err = run(
         capsys,
@@ -207,9 +207,10 @@ def test_a_target_error_with_denoising_says_what_it_estimates(capsys, tmp_path, 
         "fast",
     )
     assert code == 0, err
-    assert "the denoised image's is not estimated" in " ".join(err.split())
+    assert "before that, the beauty's estimate decides" in " ".join(err.split())
     layers, metadata = read_layers(out)
     assert "denoised" in layers and metadata["progressive"]["stopped"] in (
         "target_error",
         "max_spp",
     )
+    assert metadata["progressive"]["error_of"] == "beauty"

@@ -12,6 +12,7 @@ from cluster.connect import connect, disconnect
 from cluster.coordinator import Coordinator
 from cluster.progressive import (
     MAX_PART_SPP,
+    DenoisedTarget,
     Goal,
     Part,
     ProgressiveFrame,
@@ -194,6 +195,40 @@ def test_aovs_of_the_parts_blend_by_their_samples():
     mixed.next_part()
     with pytest.raises(ValueError, match="carries AOVs"):
         mixed.add_part(synthetic_part(1, 1), 0.01)
+
+
+def test_a_denoised_target_takes_the_denoised_estimate_once_parts_are_deep_enough():
+    """With a ``DenoisedTarget``, waves whose parts have ``MIN_PART_SPP`` samples or more take
+    the estimate of the denoised mean (``denoise_and_estimate`` on the same parts and guides),
+    the earlier ones the beauty's; the summary says which."""
+    from tracer.accuracy.denoised_error import MIN_PART_SPP, denoise_and_estimate
+
+    target = DenoisedTarget("fast", prefilter=False)
+    progress = ProgressiveFrame(W, H, Goal(target_error=1e-4, max_spp=128), denoised=target)
+    channels = np.zeros((H, W, aov.CHANNELS), np.float32)
+    channels[..., aov.ALBEDO : aov.ALBEDO + 3] = 0.5
+    channels[..., aov.NORMAL + 2] = 1.0
+    while (part := progress.next_part()) is not None:
+        if isinstance(part, SpotCheck):
+            progress.add_spot_checks(np.zeros((0, 2), np.int64), np.zeros((PARTS, 0, 3)), 0.0)
+            continue
+        radiance = np.abs(synthetic_part(part.spp, part.sample_start))  # radiance is >= 0
+        progress.add_part(radiance, 0.01, aov=channels)
+    assert progress.spp == 128 and progress.stopped == "max_spp"
+    for wave in progress.waves:
+        deep = wave.spp // PARTS >= MIN_PART_SPP
+        assert wave.error_of == ("denoised" if deep else "beauty"), wave
+    parts = progress.sums / progress.part_spp
+    albedo = channels[..., aov.ALBEDO : aov.ALBEDO + 3]
+    normal = channels[..., aov.NORMAL : aov.NORMAL + 3]
+    _, expected = denoise_and_estimate(
+        parts, progress.part_spp, albedo, normal, "fast", False, seed=progress.spp
+    )
+    assert progress.waves[-1].error == expected and expected is not None
+    assert progress.summary()["error_of"] == "denoised"
+    assert DenoisedTarget.of(override(studio().render, denoise="fast"), Goal()) is None
+    with_target = DenoisedTarget.of(override(studio().render, denoise="high"), Goal(0.1))
+    assert with_target == DenoisedTarget("high", prefilter=True)  # auto, unresolved: on
 
 
 def lit_pixel_wave(progress: ProgressiveFrame, width: int, height: int) -> None:

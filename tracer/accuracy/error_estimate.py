@@ -143,7 +143,7 @@ def pixels_to_check(parts: Images, count: int, eps: float = REL_EPSILON) -> np.n
     small gaps everywhere, which no check would change much).
     """
     stack = _parts(parts)
-    _, variance, floor, terms, as_light = _readings(stack, eps)
+    _, variance, floor, terms, as_light, _ = _readings(stack, eps)
     low = np.minimum(np.sort(stack, axis=0)[1], floor)
     gap = (variance / (low * low + eps) - as_light).sum(axis=2)
     order = np.argsort(gap, axis=None, kind="stable")[::-1][: max(0, count)]
@@ -154,16 +154,25 @@ def pixels_to_check(parts: Images, count: int, eps: float = REL_EPSILON) -> np.n
 
 def _readings(stack: np.ndarray, eps: float):
     """Per pixel and channel: the parts' mean, the variance of that mean, the denominator
-    floor, the chosen error term, and the term read as a light (see :func:`estimate_rel_mse`)."""
+    floor, the chosen error term, the term read as a light (see :func:`estimate_rel_mse`) and
+    the chosen denominator (``mu^2 + eps`` estimated)."""
     mean = stack.mean(axis=0)
     variance = stack.var(axis=0, ddof=1) / stack.shape[0]
     centre = np.median(stack, axis=0)
     floor = np.maximum(centre, np.minimum(mean, 0.5 * max_filter3(centre)))
     outlier = mean > OUTLIER * floor
     light = outlier & (max_neighbour(mean) >= CORROBORATION * mean)
-    terms = variance / (np.where(light, mean, floor) ** 2 + eps)
+    denominator = np.where(light, mean, floor) ** 2 + eps
+    terms = variance / denominator
     as_light = variance / (np.maximum(floor, mean) ** 2 + eps)
-    return mean, variance, floor, terms, as_light
+    return mean, variance, floor, terms, as_light, denominator
+
+
+def rel_denominators(parts: Images, eps: float = REL_EPSILON) -> np.ndarray:
+    """Per pixel and channel, ``mu^2 + eps`` (the relative MSE's denominator) estimated from
+    independent ``parts`` as :func:`estimate_rel_mse` does: robust to a firefly in one part,
+    not to a light the parts saw."""
+    return _readings(_parts(parts), eps)[5]
 
 
 def estimate_rel_mse(
@@ -207,7 +216,7 @@ def estimate_rel_mse(
     renders like it; docs/accuracy.md measures both.
     """
     stack = _parts(parts)
-    mean, _, _, terms, as_light = _readings(stack, eps)
+    mean, _, _, terms, as_light, _ = _readings(stack, eps)
     excess = (terms - as_light).sum(axis=2)
     if checks is not None and len(checks.pixels):
         samples = np.asarray(checks.parts, dtype=np.float64)
