@@ -192,7 +192,8 @@ class JobQueue:
             write_image(path, layers["beauty"])
         else:
             path = job_dir(self.settings, run.id) / f"{name}.npz"
-            write_layers(path, layers, {k: v for k, v in info.items() if k in ("denoise", "ids")})
+            kept = ("denoise", "ids", "error_of")
+            write_layers(path, layers, {k: v for k, v in info.items() if k in kept})
         position = next(i for i, f in enumerate(run.frames) if f.number == spec.number)
         self.store.add_frame(
             run.id,
@@ -212,6 +213,7 @@ class JobQueue:
                 "spp": info["spp"],
                 "seconds": round(info["seconds"], 4),
                 "error_estimate": info["error_estimate"],
+                "error_of": info.get("error_of"),
                 "url": f"/v1/jobs/{run.id}/frames/{spec.number}",
             },
         )

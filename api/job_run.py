@@ -166,8 +166,9 @@ class JobRun:
 
     def step(self, coordinator) -> tuple[FrameSpec, dict[str, np.ndarray], dict] | None:
         """Render one turn; returns (frame, layers, info) when that turn finished a frame:
-        its layers by name (``tracer.post.frame_layers``), info its spp, error estimate,
-        seconds, the denoiser's report and what the id layers name (``id_names``)."""
+        its layers by name (``tracer.post.frame_layers``), info its spp, error estimate (and,
+        for a progressive frame, ``error_of``: which image it is of), seconds, the denoiser's
+        report and what the id layers name (``id_names``)."""
         if self._work is None:
             self.current = self.todo[0]
             self.current_started = self.sizer.seconds_total
@@ -221,6 +222,7 @@ class JobRun:
             if step is not None:
                 yield
         layers, made = yield from off_thread(lambda: frame_layers(p.image, p.aov, request.settings))
+        made = {**made, "error_of": p.summary()["error_of"]}
         return self._complete(spec, layers, made, p.spp, p.error, p.elapsed)
 
     def _part(self, coordinator, request: FrameRequest) -> Generator:

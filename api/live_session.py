@@ -3,6 +3,7 @@ frame, the streams that watch it and its timings."""
 
 import asyncio
 import collections
+import concurrent.futures
 import io
 import logging
 import threading
@@ -11,6 +12,7 @@ import time
 import numpy as np
 
 from api.scenes import SceneEntry
+from cluster.session import SessionFrame
 from tracer.io.images import linear_to_srgb8
 from tracer.scene import format as fmt
 
@@ -56,6 +58,7 @@ class LiveSession:
         """The denoiser's last error (its frames are then shown as they are)."""
         self._pending: tuple | None = None
         self._pending_lock = threading.Lock()
+        self._encoder: concurrent.futures.ThreadPoolExecutor | None = None
         self.render_ms: collections.deque = collections.deque(maxlen=64)
         self.last_render_end: float | None = None
         self.frame_times: collections.deque = collections.deque(maxlen=32)
@@ -74,13 +77,19 @@ class LiveSession:
         event, self.event = self.event, asyncio.Event()
         event.set()
 
-    def deliver(self, frame, encoder, loop, quality: int, shows_update: float | None) -> None:
-        """Hand a cluster session's ``frame`` to ``encoder`` (a one-thread pool, off the render
+    def deliver(
+        self,
+        frame: SessionFrame,
+        loop: asyncio.AbstractEventLoop | None,
+        jpeg_quality: int,
+        shows_update: float | None,
+    ) -> None:
+        """Hand a cluster session's ``frame`` to this session's encoder thread (off the render
         thread), which denoises it if its session asks (``InteractiveSession.denoised``),
         encodes it and publishes it to the watchers on ``loop``, recording the times taken
         and, for a frame that shows a camera update, its latency. At most one frame waits: a
-        newer one replaces it (and keeps its camera update's time), so a denoiser slower than
-        the renderer drops frames rather than falling behind."""
+        newer one replaces it (keeping the earliest camera update's time), so a denoiser
+        slower than the renderer drops frames rather than falling behind."""
         meta = {
             "index": int(frame.index),
             "version": int(frame.version),
@@ -95,25 +104,43 @@ class LiveSession:
             waiting = self._pending
             if waiting is not None:
                 self.frames_dropped += 1
-                shows_update = waiting[2] if shows_update is None else shows_update
+                if waiting[2] is not None:
+                    shows_update = waiting[2]
             self._pending = (frame, meta, shows_update)
+            if self._encoder is None:
+                self._encoder = concurrent.futures.ThreadPoolExecutor(
+                    1, thread_name_prefix=f"tilerender-encode-{self.id}"
+                )
+            encoder = self._encoder
         if waiting is None:
-            encoder.submit(self._encode_pending, encoder, loop, quality)
+            encoder.submit(self._encode_pending, loop, jpeg_quality)
 
-    def _encode_pending(self, encoder, loop, quality: int) -> None:
-        """On the encoder: denoise, encode and publish the waiting frame."""
+    def stop_encoder(self) -> None:
+        """Let the encoder thread go (the session closed): a frame still waiting is dropped."""
+        with self._pending_lock:
+            encoder, self._encoder, self._pending = self._encoder, None, None
+        if encoder is not None:
+            encoder.shutdown(wait=False, cancel_futures=True)
+
+    def _encode_pending(self, loop: asyncio.AbstractEventLoop | None, jpeg_quality: int) -> None:
+        """On the encoder: denoise, encode and publish the waiting frame (an error is logged:
+        nothing else would see it on this thread)."""
         with self._pending_lock:
             pending, self._pending = self._pending, None
         if pending is None:
             return
-        frame, meta, shows_update = pending
-        image = frame.image
-        meta["denoise"] = None
-        if getattr(frame, "denoise", "off") != "off":
-            image, meta["denoise"] = self._denoised(frame)
-        e0 = time.perf_counter()
-        jpeg = encode_jpeg(image, quality)
-        self.encode_ms.append(round(1000 * (time.perf_counter() - e0), 3))
+        try:
+            frame, meta, shows_update = pending
+            image = frame.image
+            meta["denoise"] = None
+            if frame.denoise != "off":
+                image, meta["denoise"] = self._denoised(frame)
+            e0 = time.perf_counter()
+            jpeg = encode_jpeg(image, jpeg_quality)
+            self.encode_ms.append(round(1000 * (time.perf_counter() - e0), 3))
+        except Exception:
+            log.exception("session %s: a frame could not be encoded", self.id)
+            return
         if loop is None or loop.is_closed():
             return
 
@@ -126,18 +153,19 @@ class LiveSession:
 
         loop.call_soon_threadsafe(publish)
 
-    def _denoised(self, frame) -> tuple:
+    def _denoised(self, frame: SessionFrame) -> tuple[np.ndarray, dict]:
         """``(image, report)``: the frame denoised by its session, or, if the denoiser fails,
-        the frame as it is and the error (logged once per session)."""
+        the frame as it is and the error (logged when it first appears or changes)."""
         from tracer.post.denoise import DenoiseFailed, DenoiserUnavailable
 
         try:
-            done = type(self.session).denoised(frame)
+            done = self.session.denoised(frame)
         except (DenoiserUnavailable, DenoiseFailed, ValueError) as exc:
-            if self.denoise_error is None:
+            if self.denoise_error != str(exc):
                 log.warning("session %s cannot denoise: %s", self.id, exc)
             self.denoise_error = str(exc)
             return frame.image, {"quality": frame.denoise, "error": str(exc)}
+        self.denoise_error = None
         self.denoise_ms.append(round(1000 * done.seconds, 3))
         report = {
             "quality": done.quality,

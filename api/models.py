@@ -323,7 +323,7 @@ class SessionPublic(BaseModel):
     scene_id: str
     width: int
     height: int
-    denoise: str
+    denoise: Literal[DENOISE]
     camera: dict | None
     created: float
     stream_url: str

@@ -135,9 +135,6 @@ class RenderService:
         self._reniced: set[int] = set()
         self._node: str | None = None
         self._rescanned = 0.0
-        self._encoder = concurrent.futures.ThreadPoolExecutor(
-            1, thread_name_prefix="tilerender-encode"
-        )
         self.cluster_info: dict = {"tracers": [], "last_frame": None}
         self._cluster_refreshed = 0.0
         self.frames_rendered = 0
@@ -158,7 +155,8 @@ class RenderService:
         self._notify()
         if self._thread is not None:
             self._thread.join(timeout)
-        self._encoder.shutdown(wait=False, cancel_futures=True)
+        for live in list(self.sessions.values()):
+            live.stop_encoder()
 
     def _notify(self) -> None:
         with self._wake:
@@ -390,6 +388,7 @@ class RenderService:
         live.closed = True
         live.closed_reason = reason
         live.jpeg = None
+        live.stop_encoder()
         self.sessions.pop(live.id, None)
         if live.session is not None:
             try:
@@ -434,7 +433,7 @@ class RenderService:
         live.render_ms.append(round(1000 * (t1 - t0), 3))
         if shows_update is not None and live.camera_update_at == shows_update:
             live.camera_update_at = None
-        live.deliver(frame, self._encoder, self.loop, self.settings.jpeg_quality, shows_update)
+        live.deliver(frame, self.loop, self.settings.jpeg_quality, shows_update)
         live.frames += 1
         self._record_frame(getattr(live.session, "last_frame", None), "session")
         if self.metrics is not None and getattr(live.session, "last_frame", None) is None:

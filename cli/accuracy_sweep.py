@@ -211,10 +211,16 @@ def sweep(
     for config in configurations(base):
         settings = config.settings(base)
         plan = config.plan(scene, settings)
-        runs.append(_Run(config, settings, plan, np.zeros((camera.height, camera.width, 3))))
         if config.source is None:  # compile or load the kernel, untimed
             tiny = fmt.override(camera, width=1, height=1)
             render_image(scene, tiny, fmt.override(settings, spp=1), plan=plan, threads=threads)
+        elif config.source not in (run.config.name for run in runs):
+            raise ValueError(f"{config.name} denoises {config.source}, which must come first")
+        else:  # create OIDN's device and load the quality's weights, untimed
+            warm_up = np.ones((camera.height, camera.width, 3), np.float32)
+            aov = np.zeros((camera.height, camera.width, CHANNELS), np.float32)
+            denoised_image(warm_up, aov, config.denoise, prefilter, threads)
+        runs.append(_Run(config, settings, plan, np.zeros((camera.height, camera.width, 3))))
     by_name = {run.config.name: run for run in runs}
     strips: dict[str, dict[int, np.ndarray]] = {DEFAULT_CONFIG: {}, DENOISED_STRIP: {}}
     levels = spp_levels(max_spp)

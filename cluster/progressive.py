@@ -41,6 +41,7 @@ from tracer.accuracy.denoised_error import denoise_and_estimate
 from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
 from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
 from tracer.integrators.aov import CHANNELS, IDS, aov_layers
+from tracer.post.denoise import DenoiseFailed
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
@@ -294,15 +295,18 @@ class ProgressiveFrame:
         target = self.denoised
         if target is not None and self.aov_sums is not None:
             guides = aov_layers(self.aov)
-            _, denoised_error = denoise_and_estimate(
-                parts,
-                self.part_spp,
-                guides["albedo"],
-                guides["normal"],
-                target.quality,
-                target.prefilter,
-                seed=self.spp,
-            )
+            try:
+                _, denoised_error = denoise_and_estimate(
+                    parts,
+                    self.part_spp,
+                    guides["albedo"],
+                    guides["normal"],
+                    target.quality,
+                    target.prefilter,
+                    seed=self.spp,
+                )
+            except (ValueError, DenoiseFailed):  # a frame OIDN cannot take: the beauty decides
+                denoised_error = None
             if denoised_error is not None:
                 self.error, error_of = denoised_error, "denoised"
         checked = 0 if checks is None else len(checks.pixels)

@@ -37,7 +37,8 @@ from cluster.scene_graph import SceneGraph
 from tracer.integrators.aov import ALBEDO, NORMAL
 from tracer.integrators.names import AOV_INTEGRATORS, DENOISE
 from tracer.maths import portable
-from tracer.post.guides import guides_are_noisy
+from tracer.post.denoise import Denoised
+from tracer.post.guides import resolve_prefilter
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
@@ -150,7 +151,8 @@ class SessionFrame:
     """float32 (H, W, 6): the blended albedo and normal behind ``image``, when denoising with
     guides (the integrator records AOVs)."""
     prefilter: bool = False
-    """Whether the guides are noisy enough to prefilter (``tracer.post.guides``)."""
+    """Whether to prefilter the guides: the scene's ``render.denoise_prefilter``, ``auto``
+    resolved for it (``tracer.post.guides``)."""
 
 
 class InteractiveSession:
@@ -177,6 +179,8 @@ class InteractiveSession:
         self._scaler = WorkloadScaler(1.0 / target_fps, max_spp=max_spp)
         self._image: np.ndarray | None = None
         self._guides: np.ndarray | None = None
+        self._guide_frames = 0
+        """Frames blended into the guides since they (re)started."""
         self._denoise = "off"
         self.last_frame: Frame | None = None
         """The coordinator's frame behind the latest session frame (tracers, idle, timings)."""
@@ -247,7 +251,12 @@ class InteractiveSession:
             aov = _upscale(frame.aov, camera.height, camera.width)
             albedo, normal = aov[..., ALBEDO : ALBEDO + 3], aov[..., NORMAL : NORMAL + 3]
             fresh = np.concatenate([albedo, normal], axis=2)
-            self._guides = _blended(self._guides, fresh, blend, restart or self._guides is None)
+            restart = restart or self._guides is None
+            self._guide_frames = 1 if restart else self._guide_frames + 1
+            # Guides started after the image converged for a while are their own running mean
+            # until they have as many frames as its blend.
+            guide_blend = max(blend, 1.0 / self._guide_frames)
+            self._guides = _blended(self._guides, fresh, guide_blend, restart)
         else:
             self._guides = None
         self._rendered_camera = small
@@ -266,14 +275,14 @@ class InteractiveSession:
             samples_accumulated=round(spp / blend),
             denoise=quality,
             guides=None if self._guides is None else self._guides.copy(),
-            prefilter=guided and guides_are_noisy(state.materials.values(), camera),
+            prefilter=guided and _prefilters(state, camera),
         )
         self._index += 1
         self._last = result
         return result
 
     @staticmethod
-    def denoised(frame: SessionFrame, threads: int | None = None):
+    def denoised(frame: SessionFrame, threads: int | None = None) -> Denoised | None:
         """``frame``'s image denoised at its quality (``tracer.post.denoise.Denoised``), guided
         by its blended guides where it has them; None when its quality is ``off``. Raises the
         denoiser's errors (``DenoiserUnavailable``, ``DenoiseFailed``)."""
@@ -317,6 +326,12 @@ class InteractiveSession:
         self.last_frame = None
 
 
+def _prefilters(state, camera: fmt.Camera) -> bool:
+    """Whether the scene's ``render.denoise_prefilter`` (``auto`` resolved) prefilters."""
+    settings = resolve_prefilter(state.render, state.materials.values(), camera)
+    return settings.denoise_prefilter == "on"
+
+
 def _blended(
     shown: np.ndarray | None, fresh: np.ndarray, blend: float, restart: bool
 ) -> np.ndarray:
@@ -329,7 +344,7 @@ def _blended(
 
 
 def _upscale(image: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Nearest-neighbour resize of ``image`` (h, w, 3) to (height, width, 3)."""
+    """Nearest-neighbour resize of ``image`` (h, w, channels) to (height, width, channels)."""
     h, w = image.shape[:2]
     if (h, w) == (height, width):
         return image

@@ -56,11 +56,12 @@ def _live(ctx: Ctx, session_id: str) -> LiveSession:
     return live
 
 
-def _check_denoiser(quality: str) -> None:
-    """A 503 now when the session is to denoise and this server cannot."""
+async def _check_denoiser(quality: str) -> None:
+    """A 503 now when the session is to denoise and this server cannot (the check imports
+    pyoidn, off the event loop)."""
     if quality != "off":
         try:
-            require_denoiser()
+            await to_thread.run_sync(require_denoiser)
         except DenoiserUnavailable as exc:
             raise ApiError(503, f"this server cannot denoise: {exc}", "unavailable") from None
 
@@ -103,7 +104,7 @@ async def open_session(body: SessionCreate, ctx: Ctx, response: Response) -> Ses
         )
     if not ctx.service.ready:
         raise ApiError(503, ctx.service.error or "the cluster is starting", "unavailable")
-    _check_denoiser(body.denoise)
+    await _check_denoiser(body.denoise)
     camera = _camera(entry.graph.state.camera, body.camera, width, height)
     try:
         ctx.service.session_factory()
@@ -150,13 +151,16 @@ async def close_session(session_id: str, ctx: Ctx) -> Response:
     return Response(status_code=204)
 
 
-@router.patch("/{session_id}", response_model=SessionPublic, responses=errors(503))
+@router.patch("/{session_id}", response_model=SessionPublic, responses=errors(404, 503))
 async def update_session(session_id: str, body: SessionUpdate, ctx: Ctx) -> SessionPublic:
     """Change how the session shows its frames: ``denoise`` (the viewer's toggle)."""
     live = _live(ctx, session_id)
-    _check_denoiser(body.denoise)
-    live.denoise = body.denoise
+    await _check_denoiser(body.denoise)
+    if not hasattr(live.session, "set_denoise"):
+        raise ApiError(503, f"{ctx.settings.session_class} sessions cannot denoise", "unavailable")
     live.session.set_denoise(body.denoise)
+    live.denoise = body.denoise
+    live.denoise_error = None
     live.touch()
     return _public(live)
 

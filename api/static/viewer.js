@@ -173,8 +173,14 @@ async function stopSession() {
 
 async function setDenoise() {
   if (!state.session) return;
-  const session = await api("PATCH", `/v1/sessions/${state.session.id}`, { denoise: $("denoise").value });
-  status(`session ${session.id}: denoise ${session.denoise}`);
+  try {
+    const session = await api("PATCH", `/v1/sessions/${state.session.id}`, { denoise: $("denoise").value });
+    state.session.denoise = session.denoise;
+    status(`session ${session.id}: denoise ${session.denoise}`);
+  } catch (error) {
+    $("denoise").value = state.session.denoise || "off";  // the session kept its setting
+    throw error;
+  }
 }
 
 function fmt(value, digits = 2) {

@@ -211,6 +211,26 @@ def test_job_layers_aovs_and_denoise(client, tmp_path):
     assert client.get("/v1/jobs").json()["count"] == jobs_before
 
 
+def test_a_denoised_job_to_a_target_error_says_which_image_it_estimated(client, tmp_path):
+    """A job with a target error and denoising: past 16 samples per part its waves take the
+    denoised image's estimate, and the stored frame says so; ``denoise_prefilter`` reaches the
+    denoiser."""
+    from tracer.io.layers import read_layers
+
+    scene = upload_tiny(client)
+    body = {"scene_id": scene["id"], "width": 24, "height": 16, "target_error": 1e-4}
+    body |= {"max_spp": 128, "denoise": "fast", "denoise_prefilter": "on"}
+    r = client.post("/v1/jobs", json=body)
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json()["id"])
+    assert job["status"] == "done", job
+    bundle = tmp_path / "frame.npz"
+    bundle.write_bytes(client.get(f"/v1/jobs/{job['id']}/frames/0?format=npz").content)
+    layers, metadata = read_layers(bundle)
+    assert "denoised" in layers and metadata["denoise"]["prefiltered"] is True
+    assert metadata["error_of"] == "denoised"
+
+
 def test_textured_bundle_renders_like_the_library(client):
     """The textured sample scene uploaded as a bundle (JSON, GLB, OBJ, MTL, PNGs) renders
     through the cluster exactly as the library renders it: its images and UVs reach the

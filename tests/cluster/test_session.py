@@ -171,3 +171,22 @@ def test_a_denoised_session_blends_its_guides_and_denoises_the_blend(coordinator
     session.set_denoise("off")
     off = session.render_next()
     assert off.guides is None and InteractiveSession.denoised(off) is None
+
+    # Guides started in a converged view are their own running mean, not the image's blend.
+    session.set_denoise("fast")
+    again = [session.render_next() for _ in range(2)]
+    later = [
+        render_pixels(scene, 0, pixels, CAMERA, settings, frame=k).aov.reshape(
+            CAMERA.height, CAMERA.width, -1
+        )
+        for k in (4, 5)
+    ]
+    mean = np.mean(later, axis=0)
+    expected = np.concatenate([mean[..., 0:3], mean[..., 3:6]], axis=2)
+    assert again[-1].blend == pytest.approx(1 / 6)
+    np.testing.assert_allclose(again[-1].guides, expected, rtol=1e-5, atol=1e-6)
+
+    # The scene's own render.denoise_prefilter is honoured.
+    render = graph.state.render.model_copy(update={"denoise_prefilter": "on"})
+    graph.commit([{"op": "set_render", "render": render.model_dump(mode="json")}])
+    assert session.render_next().prefilter is True

@@ -6,7 +6,9 @@ the first non-delta surface a pixel's samples meet varies only across the pixel'
 are as clean as the pixel filter makes them, and prefiltering them costs more than the beauty's
 own denoising and leaves as much error or more; a lens aperture (depth of field) and image
 textures make them noisy, and the prefilters then lower the error (``docs/denoising.md``,
-Guides and prefiltering)."""
+Guides and prefiltering). Glass varies them too (each sample reflects or refracts), but on the
+glass scene measured the prefilters lowered the error by at most 4% at 4 and 16 spp, for four
+times the time, so glass alone does not ask for them."""
 
 from collections.abc import Iterable
 
