@@ -151,7 +151,7 @@ async def close_session(session_id: str, ctx: Ctx) -> Response:
     return Response(status_code=204)
 
 
-@router.patch("/{session_id}", response_model=SessionPublic, responses=errors(404, 503))
+@router.patch("/{session_id}", response_model=SessionPublic, responses=errors(400, 404, 503))
 async def update_session(session_id: str, body: SessionUpdate, ctx: Ctx) -> SessionPublic:
     """Change how the session shows its frames: ``denoise`` (the viewer's toggle)."""
     live = _live(ctx, session_id)

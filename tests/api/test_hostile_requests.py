@@ -189,7 +189,7 @@ def test_without_the_token_the_body_is_never_read():
         ("DELETE", "/v1/jobs", "GET, POST"),
         ("PUT", "/v1/scenes/s000000000000", "DELETE, GET, PATCH"),
         ("GET", "/v1/scenes/s000000000000/commits", "POST"),
-        ("POST", "/v1/sessions/v000000000000", "DELETE, GET"),
+        ("POST", "/v1/sessions/v000000000000", "DELETE, GET, PATCH"),
         ("PATCH", "/v1/sessions", "GET, POST"),
         ("GET", "/v1/cluster/balancer", "PUT"),
         ("POST", "/healthz", "GET"),
