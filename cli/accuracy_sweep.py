@@ -11,9 +11,10 @@ import numpy as np
 from cli.accuracy_metrics import TARGETS, measure, time_to
 from cli.accuracy_reference import Reference
 from tracer.compiled.scene import CompiledScene
-from tracer.integrators.aov import CHANNELS, aov_layers
+from tracer.integrators.aov import CHANNELS
 from tracer.integrators.effects import EffectPlan, effect_plan
 from tracer.integrators.flags import EFFECTS, LIGHT_SAMPLES, NO_MIS, SHADOWS
+from tracer.post.frame_layers import denoise_with_aov
 from tracer.render import render_image
 from tracer.scene import format as fmt
 
@@ -138,24 +139,6 @@ def render_counted(
     return rgb, sum(rays), int(cost.sum()), aov
 
 
-def denoised_image(
-    image: np.ndarray, aov: np.ndarray, quality: str, prefilter: bool, threads: int
-) -> np.ndarray:
-    """``image`` denoised at ``quality``, guided by the albedo and normal of ``aov``."""
-    from tracer.post.denoise import denoise
-
-    layers = aov_layers(aov.astype(np.float32))
-    done = denoise(
-        image.astype(np.float32),
-        layers["albedo"],
-        layers["normal"],
-        quality=quality,
-        threads=threads,
-        prefilter=prefilter,
-    )
-    return done.image
-
-
 class RenderClock:
     """Render time that a busy shared machine does not inflate: the process's CPU seconds
     (every render thread's) divided by the thread count, which is the wall-clock time of the
@@ -219,7 +202,7 @@ def sweep(
         else:  # create OIDN's device and load the quality's weights, untimed
             warm_up = np.ones((camera.height, camera.width, 3), np.float32)
             aov = np.zeros((camera.height, camera.width, CHANNELS), np.float32)
-            denoised_image(warm_up, aov, config.denoise, prefilter, threads)
+            denoise_with_aov(warm_up, aov, config.denoise, prefilter, threads)
         runs.append(_Run(config, settings, plan, np.zeros((camera.height, camera.width, 3))))
     by_name = {run.config.name: run for run in runs}
     strips: dict[str, dict[int, np.ndarray]] = {DEFAULT_CONFIG: {}, DENOISED_STRIP: {}}
@@ -248,13 +231,13 @@ def sweep(
             else:  # the source rendered this level already: denoise its mean once
                 source = by_name[run.config.source]
                 with RenderClock(threads) as clock:
-                    image = denoised_image(
+                    image = denoise_with_aov(
                         source.total / level,
                         source.aov_total / level,
                         run.config.denoise,
                         prefilter,
                         threads,
-                    )
+                    ).image
                 seconds = source.seconds + clock.seconds
                 wall_seconds = source.wall_seconds + clock.wall_seconds
                 run.rays, run.work = source.rays, source.work

@@ -20,13 +20,13 @@ from cli.accuracy_sweep import (
     AOV_CONFIG,
     DEFAULT_CONFIG,
     configurations,
-    denoised_image,
     render_counted,
 )
 from tests.helpers import CORNELL, SCENES
 from tracer.accuracy.error_estimate import PARTS, noise_floor
 from tracer.compiled.scene import compile_scene
 from tracer.integrators.effects import effect_plan
+from tracer.post.frame_layers import denoise_with_aov
 from tracer.scene import format as fmt
 from tracer.scene.loader import load_scene
 
@@ -151,7 +151,7 @@ def test_denoising_pays_at_the_study_size(quality):
     for spp in (1, 4):
         rgb, _, _, aov = render_counted(scene, camera, fmt.override(settings, spp=spp), 0, 2, plan)
         raw = measure(rgb, ref, floor, False)["rel_mse"]
-        denoised = measure(denoised_image(rgb, aov, quality, False, 2), ref, floor, False)
+        denoised = measure(denoise_with_aov(rgb, aov, quality, False, 2).image, ref, floor, False)
         assert denoised["rel_mse"] < raw / 4, (spp, denoised["rel_mse"], raw)
 
 

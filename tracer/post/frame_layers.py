@@ -4,6 +4,7 @@ denoised beauty, made once from the assembled frame (never per tracer range: sea
 import numpy as np
 
 from tracer.integrators.aov import LAYERS, aov_layers
+from tracer.post.denoise import Denoised, DenoiseFailed, denoise
 from tracer.scene import format as fmt
 
 
@@ -36,18 +37,9 @@ def frame_layers(
     aovs = aov_layers(aov) if aov is not None else {}
     if settings.denoise == "off":
         return {**layers, **aovs}, {}
-    from tracer.post.denoise import DenoiseFailed, denoise
-
-    albedo, normal = aovs.get("albedo"), aovs.get("normal")
+    prefilter = settings.denoise_prefilter != "off"
     try:
-        done = denoise(
-            rgb,
-            albedo,
-            normal,
-            quality=settings.denoise,
-            threads=threads,
-            prefilter=settings.denoise_prefilter != "off",
-        )
+        done = denoise_with_aov(rgb, aov, settings.denoise, prefilter, threads)
     except ValueError as exc:  # a frame OIDN cannot take (the renderer's bug, not the user's)
         raise DenoiseFailed(f"the frame cannot be denoised: {exc}") from None
     layers["denoised"] = done.image
@@ -60,6 +52,23 @@ def frame_layers(
         "seconds": round(done.seconds, 4),
     }
     return layers, {"denoise": info}
+
+
+def denoise_with_aov(
+    rgb: np.ndarray,
+    aov: np.ndarray | None,
+    quality: str,
+    prefilter: bool,
+    threads: int | None = None,
+) -> Denoised:
+    """``rgb`` (H, W, 3) denoised at ``quality``, guided by the albedo and normal of ``aov``
+    (H, W, ``aov.CHANNELS``; None: no guides), prefiltered when ``prefilter``
+    (``tracer.post.denoise.denoise``, whose errors it raises)."""
+    albedo = normal = None
+    if aov is not None:
+        layers = aov_layers(np.asarray(aov, np.float32))
+        albedo, normal = layers["albedo"], layers["normal"]
+    return denoise(rgb, albedo, normal, quality, threads, prefilter=prefilter)
 
 
 def default_layer(settings: fmt.RenderSettings) -> str:
