@@ -90,6 +90,7 @@ class _StateHeader(_Strict):
     materials: list[tuple[str, fmt.Material]]
     meshes: list[tuple[str, _ArrayIndex, _ArrayIndex]]
     mesh_uvs: list[tuple[str, _ArrayIndex]] = []
+    mesh_normals: list[tuple[str, _ArrayIndex]] = []
     textures: list[tuple[str, _ArrayIndex]] = []
     nodes: list[tuple[int, str, int | None, NodeKind, str | None, str | None]]
     transforms: _ArrayIndex
@@ -154,6 +155,11 @@ def encode_state(state: SceneState) -> bytes:
         ],
         "mesh_uvs": [
             [name, arrays.add(m.uvs)] for name, m in state.meshes.items() if m.uvs is not None
+        ],
+        "mesh_normals": [
+            [name, arrays.add(m.normals)]
+            for name, m in state.meshes.items()
+            if m.normals is not None
         ],
         "textures": [[name, arrays.add(pixels)] for name, pixels in state.textures.items()],
         "nodes": [[n.id, n.name, n.parent, n.kind, n.mesh, n.material] for n in nodes],
@@ -237,6 +243,11 @@ def _build_state(header: _StateHeader, arrays: list[np.ndarray]) -> SceneState:
         if name in uvs:
             raise SceneError(f"the UVs of mesh {name!r} appear twice")
         uvs[name] = _array(arrays, index, "<f8", (None, 2))
+    normals = {}
+    for name, index in header.mesh_normals:
+        if name in normals:
+            raise SceneError(f"the normals of mesh {name!r} appear twice")
+        normals[name] = _array(arrays, index, "<f8", (None, 3))
     meshes = {}
     for name, vertices, faces in header.meshes:
         if name in meshes:
@@ -246,9 +257,12 @@ def _build_state(header: _StateHeader, arrays: list[np.ndarray]) -> SceneState:
             _array(arrays, faces, "<i8"),
             f"mesh {name!r}",
             uvs.pop(name, None),
+            normals.pop(name, None),
         )
     if uvs:
         raise SceneError(f"UVs for mesh {next(iter(uvs))!r}, which does not exist")
+    if normals:
+        raise SceneError(f"normals for mesh {next(iter(normals))!r}, which does not exist")
     textures = {}
     for name, index in header.textures:
         if name in textures:

@@ -20,6 +20,7 @@ import numpy as np
 from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
+from tracer.scene import vertex_normals
 from tracer.scene.environment import EnvironmentMap
 
 NodeKind = Literal["static", "rigid", "deformable", "dynamic"]
@@ -35,14 +36,16 @@ def frozen_array(values, dtype) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
-    """Triangles in object space: ``vertices`` float64 (V, 3), ``faces`` int64 (F, 3) and
+    """Triangles in object space: ``vertices`` float64 (V, 3), ``faces`` int64 (F, 3),
     optionally ``uvs`` float64 (V, 2), texture coordinates per vertex (``u`` left to right,
-    ``v`` bottom to top of an image); all read-only. Build with :func:`make_mesh`, which
-    validates."""
+    ``v`` bottom to top of an image), and optionally ``normals`` float64 (V, 3), unit shading
+    normals per vertex (without them the mesh shades flat); all read-only. Build with
+    :func:`make_mesh`, which validates."""
 
     vertices: np.ndarray
     faces: np.ndarray
     uvs: np.ndarray | None = None
+    normals: np.ndarray | None = None
 
     @property
     def triangles(self) -> int:
@@ -56,9 +59,10 @@ def placed(vertices: np.ndarray, faces: np.ndarray, matrix: np.ndarray):
     return moved, (faces[:, ::-1] if portable.det3(matrix) < 0.0 else faces)
 
 
-def make_mesh(vertices, faces, label: str = "mesh", uvs=None) -> Mesh:
-    """A validated mesh: at least one triangle, finite coordinates, indices in range, and
-    ``uvs`` (if given) one finite pair per vertex."""
+def make_mesh(vertices, faces, label: str = "mesh", uvs=None, normals=None) -> Mesh:
+    """A validated mesh: at least one triangle, finite coordinates, indices in range, ``uvs``
+    (if given) one finite pair per vertex, and ``normals`` (if given) one finite, non-zero
+    vector per vertex, normalised here."""
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
@@ -81,7 +85,9 @@ def make_mesh(vertices, faces, label: str = "mesh", uvs=None) -> Mesh:
         if not np.isfinite(uvs).all():
             raise SceneError(f"{label}: the mesh has NaN or infinite UVs")
         uvs = frozen_array(uvs, np.float64)
-    return Mesh(frozen_array(vertices, np.float64), frozen_array(faces, np.int64), uvs)
+    if normals is not None:
+        normals = vertex_normals.checked(normals, vertices.shape[0], label)
+    return Mesh(frozen_array(vertices, np.float64), frozen_array(faces, np.int64), uvs, normals)
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,11 +19,11 @@ from typing import Annotated, Literal
 
 import numpy as np
 import pydantic
-from pydantic import BaseModel, ConfigDict, Field, PlainValidator
-from pydantic_core import PydanticCustomError
+from pydantic import BaseModel, ConfigDict, Field
 
 from tracer.errors import SceneError, format_validation_error
 from tracer.scene import format as fmt
+from tracer.scene import vertex_normals
 from tracer.scene.checks import check_textures
 from tracer.scene.model import (
     Animation,
@@ -35,85 +35,17 @@ from tracer.scene.model import (
     frozen_array,
     make_mesh,
 )
-
-INT64_MAX = 2**63 - 1
-"""The largest node id and face index (both are stored as int64)."""
-
-
-def _invalid(message: str) -> PydanticCustomError:
-    return PydanticCustomError("invalid_value", message)
-
-
-def _node_ref(value) -> int | str:
-    if isinstance(value, str) and 0 < len(value) <= fmt.MAX_NAME:
-        return value
-    if isinstance(value, int | np.integer) and not isinstance(value, bool):
-        return int(value)
-    raise _invalid(
-        "a node is referred to by its id (an integer) or its name (a string of at most "
-        f"{fmt.MAX_NAME} characters)"
-    )
-
-
-def _node_id(value) -> int:
-    if isinstance(value, int | np.integer) and not isinstance(value, bool):
-        if 0 <= value <= INT64_MAX:
-            return int(value)
-    raise _invalid(f"a node id is an integer from 0 to {INT64_MAX}")
-
-
-def _mesh_array(value, what: str, kinds: str, kind_message: str) -> np.ndarray:
-    try:
-        array = np.asarray(value)
-    except (ValueError, TypeError):
-        raise _invalid(f"{what} must be a rectangular (N, 3) array") from None
-    if array.ndim != 2 or array.shape[1] != 3 or array.shape[0] == 0:
-        raise _invalid(f"{what} must have shape (N, 3) with N >= 1, not {array.shape}")
-    if array.dtype.kind not in kinds:
-        raise _invalid(kind_message)
-    return array
-
-
-def _vertices(value) -> np.ndarray:
-    array = _mesh_array(value, "vertices", "iuf", "vertex coordinates must be numbers")
-    array = frozen_array(array, np.float64)
-    if not np.isfinite(array).all():
-        raise _invalid("vertices must be finite (no NaN or infinity)")
-    return array
-
-
-def _faces(value) -> np.ndarray:
-    array = _mesh_array(value, "faces", "iu", "face indices must be integers")
-    if array.min() < 0 or array.max() > INT64_MAX:
-        raise _invalid("face indices must be non-negative 64-bit integers")
-    return frozen_array(array, np.int64)
-
-
-def _uvs(value) -> np.ndarray:
-    try:
-        array = np.asarray(value)
-    except (ValueError, TypeError):
-        raise _invalid("uvs must be a rectangular (N, 2) array") from None
-    if array.ndim != 2 or array.shape[1] != 2:
-        raise _invalid(f"uvs must have shape (N, 2), not {array.shape}")
-    if array.dtype.kind not in "iuf":
-        raise _invalid("uvs must be numbers")
-    array = frozen_array(array, np.float64)
-    if not np.isfinite(array).all():
-        raise _invalid("uvs must be finite (no NaN or infinity)")
-    return array
-
-
-NodeRef = Annotated[int | str, PlainValidator(_node_ref)]
-NodeId = Annotated[int, PlainValidator(_node_id)]
-Name = fmt.Name
-NodeName = Annotated[str, Field(max_length=fmt.MAX_NAME)]
-Vertices = Annotated[np.ndarray, PlainValidator(_vertices)]
-"""float64 (V, 3), read-only; given as nested lists or any numeric array."""
-Faces = Annotated[np.ndarray, PlainValidator(_faces)]
-"""int64 (F, 3), read-only; given as nested lists or any integer array."""
-UVs = Annotated[np.ndarray, PlainValidator(_uvs)]
-"""float64 (V, 2), read-only: texture coordinates per vertex."""
+from tracer.scene.op_fields import (
+    INT64_MAX,
+    Faces,
+    Name,
+    NodeId,
+    NodeName,
+    NodeRef,
+    Normals,
+    UVs,
+    Vertices,
+)
 
 
 class _Op(BaseModel):
@@ -252,19 +184,21 @@ class SetRender(_Op):
 
 
 class AddMesh(_Op):
-    """Add a mesh under a new name (``uvs``: texture coordinates per vertex, optional)."""
+    """Add a mesh under a new name (``uvs``: texture coordinates per vertex, ``normals``:
+    shading normals per vertex; both optional)."""
 
     op: Literal["add_mesh"] = "add_mesh"
     mesh: Name
     vertices: Vertices
     faces: Faces
     uvs: UVs | None = None
+    normals: Normals | None = None
 
     def _apply(self, draft: "_Draft") -> None:
         if self.mesh in draft.meshes:
             raise SceneError(f"mesh {self.mesh!r} already exists (replace_mesh changes it)")
         draft.table("meshes")[self.mesh] = make_mesh(
-            self.vertices, self.faces, _label(self.mesh), self.uvs
+            self.vertices, self.faces, _label(self.mesh), self.uvs, self.normals
         )
 
 
@@ -288,34 +222,46 @@ class RemoveMesh(_Op):
 
 class UpdateVertices(_Op):
     """Move a mesh's vertices, keeping its faces and UVs (a deformable mesh). The new mesh
-    shares the old one's face and UV arrays."""
+    shares the old one's face and UV arrays. A mesh with shading normals takes ``normals`` if
+    given, else gets smooth ones computed from its moved triangles
+    (``vertex_normals.area_weighted``); a flat mesh stays flat."""
 
     op: Literal["update_vertices"] = "update_vertices"
     mesh: Name
     vertices: Vertices
+    normals: Normals | None = None
 
     def _apply(self, draft: "_Draft") -> None:
         mesh = draft.mesh(self.mesh)
         have, got = mesh.vertices.shape[0], self.vertices.shape[0]
         if got != have:
             raise SceneError(f"mesh {self.mesh!r} has {have} vertices, got {got}")
+        label = _label(self.mesh)
+        if self.normals is not None:
+            normals = vertex_normals.checked(self.normals, have, label)
+        elif mesh.normals is not None:
+            normals = vertex_normals.area_weighted(self.vertices, mesh.faces, mesh.normals)
+        else:
+            normals = None
         # Same count, faces already valid and vertices already checked: nothing to revalidate.
-        draft.table("meshes")[self.mesh] = Mesh(self.vertices, mesh.faces, mesh.uvs)
+        draft.table("meshes")[self.mesh] = Mesh(self.vertices, mesh.faces, mesh.uvs, normals)
 
 
 class ReplaceMesh(_Op):
-    """Replace a mesh's vertices, faces and UVs (a dynamic mesh: its topology changes)."""
+    """Replace a mesh's vertices, faces, UVs and normals (a dynamic mesh: its topology
+    changes)."""
 
     op: Literal["replace_mesh"] = "replace_mesh"
     mesh: Name
     vertices: Vertices
     faces: Faces
     uvs: UVs | None = None
+    normals: Normals | None = None
 
     def _apply(self, draft: "_Draft") -> None:
         draft.mesh(self.mesh)
         draft.table("meshes")[self.mesh] = make_mesh(
-            self.vertices, self.faces, _label(self.mesh), self.uvs
+            self.vertices, self.faces, _label(self.mesh), self.uvs, self.normals
         )
 
 
