@@ -1,7 +1,7 @@
 """A scene that uses every effect and makes last-bit differences of matrix products show: odd
 rotations, non-uniform and mirroring scales, a shearing matrix, static, rigid and deformable
-nodes, a parent chain, a texture, an environment map, spot, point and sun lights, a thin lens
-and a camera looking along no axis."""
+nodes, a parent chain, a texture, smooth spheres (shading normals, rigid and deformable), an
+environment map, spot, point and sun lights, a thin lens and a camera looking along no axis."""
 
 from pathlib import Path
 
@@ -104,7 +104,7 @@ def harsh_scene(directory: Path) -> Path:
             {
                 "name": "hand",
                 "parent": "arm",
-                "shape": {"type": "sphere", "radius": 0.37, "subdivisions": 3},
+                "shape": {"type": "sphere", "radius": 0.37, "subdivisions": 1, "smooth": True},
                 "material": "glass",
                 "kind": "rigid",
                 "transform": {
@@ -129,7 +129,7 @@ def harsh_scene(directory: Path) -> Path:
             },
             {
                 "name": "ball",
-                "shape": {"type": "sphere", "radius": 0.53, "subdivisions": 3},
+                "shape": {"type": "sphere", "radius": 0.53, "subdivisions": 3, "smooth": True},
                 "material": "chrome",
                 "kind": "deformable",
                 "transform": {"translate": [0.37, 0.53, 1.41], "rotate": [13.1, 29.3, 7.7]},

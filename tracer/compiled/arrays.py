@@ -74,6 +74,9 @@ class SceneArrays(NamedTuple):
     tri_uv: tuple[np.ndarray, np.ndarray]
     """float32 (M, 6) per pool: each row's vertex UVs (zeros for a mesh without UVs); (0, 6)
     when no mesh of the pool has UVs."""
+    tri_normal: tuple[np.ndarray, np.ndarray]
+    """float32 (M, 9) per pool: each row's vertex shading normals (zeros for a flat mesh);
+    (0, 9) when no mesh of the pool has any."""
     tex_pixels: np.ndarray
     """float32 (N, 3): linear RGB texels of every texture (``tracer.shading.textures``)."""
     tex_info: np.ndarray
@@ -155,6 +158,7 @@ def borrow_scene(s):
         borrowed(s.mat_param),
         borrowed(s.mat_texture),
         _pair(s.tri_uv),
+        _pair(s.tri_normal),
         borrowed(s.tex_pixels),
         borrowed(s.tex_info),
         borrowed(s.tex_scale),

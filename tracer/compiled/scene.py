@@ -27,6 +27,8 @@ import numpy as np
 
 from tracer import config
 from tracer.compiled.arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
+from tracer.compiled.corners import NO_CORNERS, Corners, mesh_corners
+from tracer.compiled.corners import joined as joined_corners
 from tracer.compiled.static_clusters import cluster_nodes, snapped_center
 from tracer.compiled.zero_area import all_zero_area, zero_area_mask
 from tracer.errors import SceneError
@@ -40,7 +42,7 @@ from tracer.scene.checks import check_textures
 from tracer.scene.model import Mesh, SceneState, placed
 from tracer.shading.lights import LightTable, build_light_table, light_arrays, scene_fields
 from tracer.shading.materials import MaterialTable, material_table
-from tracer.shading.textures import TextureTable, texture_table, uv_rows
+from tracer.shading.textures import TextureTable, texture_table
 
 STATIC_KEY = "\0static"
 """Key of the baked static mesh among the compiled meshes (not a valid user mesh name)."""
@@ -73,9 +75,10 @@ class MeshAccel:
     from and its index in that node's mesh. ``None`` for user meshes."""
     node_runs: np.ndarray | None = None
     """For the baked static mesh, int32 (nodes, 2): each node's first triangle and its id."""
-    tri_uv: np.ndarray | None = None
-    """float32 (T, 6), leaf order: each triangle's vertex UVs; ``None`` when the mesh has none
-    (the baked static mesh has rows of zeros for the meshes without)."""
+    corners: Corners = NO_CORNERS
+    """Leaf order: each triangle's vertex UVs and shading normals (``tracer.compiled.corners``);
+    ``None`` when the mesh has none (a baked static mesh has rows of zeros for the meshes
+    without)."""
 
     @property
     def triangles(self) -> int:
@@ -98,6 +101,8 @@ class Pool:
     tri_material: np.ndarray
     tri_uv: np.ndarray
     """float32 (M, 6), or (0, 6) when no mesh of the pool has UVs."""
+    tri_normal: np.ndarray
+    """float32 (M, 9), or (0, 9) when no mesh of the pool has shading normals."""
 
 
 @dataclass(frozen=True)
@@ -187,14 +192,14 @@ def _centered_triangles(vertices: np.ndarray, faces: np.ndarray, label: str):
     return center, _gather_centered(vertices, faces, center)
 
 
-def _accel(source, tri_verts, center, zero_area, per_triangle_material, uv, label) -> MeshAccel:
-    """A mesh's BVH; ``uv`` float32 (T, 6) in the mesh's triangle order, or None."""
+def _accel(source, tri_verts, center, zero_area, tri_material, corners, label) -> MeshAccel:
+    """A mesh's BVH; ``corners`` in the mesh's triangle order."""
     valid = np.flatnonzero(~zero_area).astype(np.int32)
     if valid.size == 0:
         given = source.vertices[source.faces] if isinstance(source, Mesh) else tri_verts
         raise SceneError(all_zero_area(label, np.asarray(given, np.float64).reshape(-1, 3, 3)))
     accel = bvh_module.to_traversal(bvh_module.build(tri_verts, valid), tri_verts)
-    material = per_triangle_material[accel.tri_prim].astype(np.int32)
+    material = tri_material[accel.tri_prim].astype(np.int32)
     lo, hi = _bounds(accel.tri_verts.reshape(-1, 3))
     return MeshAccel(
         source,
@@ -205,12 +210,8 @@ def _accel(source, tri_verts, center, zero_area, per_triangle_material, uv, labe
         hi,
         zero_area,
         sah_reference=bvh_update.sah_costs(accel),
-        tri_uv=None if uv is None else uv[accel.tri_prim],
+        corners=corners.ordered(accel.tri_prim),
     )
-
-
-def _mesh_uv(mesh: Mesh) -> np.ndarray | None:
-    return None if mesh.uvs is None else uv_rows(mesh.uvs, mesh.faces)
 
 
 def mesh_accel(
@@ -240,7 +241,6 @@ def mesh_accel(
             rebuild_threshold,
         )
         lo, hi = _bounds(moved.bvh.tri_verts.reshape(-1, 3))
-        uv = _mesh_uv(mesh)
         return MeshAccel(
             mesh,
             moved.bvh,
@@ -250,9 +250,11 @@ def mesh_accel(
             hi,
             zero_area,
             sah_reference=moved.reference,
-            tri_uv=None if uv is None else uv[moved.bvh.tri_prim],
+            corners=mesh_corners(mesh).ordered(moved.bvh.tri_prim),
         )
-    return _accel(mesh, tri_verts, center, zero_area, no_material, _mesh_uv(mesh), f"mesh {key!r}")
+    return _accel(
+        mesh, tri_verts, center, zero_area, no_material, mesh_corners(mesh), f"mesh {key!r}"
+    )
 
 
 def static_signature(state: SceneState) -> tuple:
@@ -305,10 +307,10 @@ def static_accels(state: SceneState, signature: tuple, material_index: dict) -> 
 
 def _bake(signature: tuple, triangles: list, material_index: dict, cluster: int) -> MeshAccel:
     """One cluster of static nodes baked into one mesh around its own origin."""
-    parts, materials, owners, locals_, uvs = [], [], [], [], []
-    for (node, mesh, _), (world, faces) in zip(signature, triangles, strict=True):
+    parts, materials, owners, locals_, corners = [], [], [], [], []
+    for (node, mesh, matrix), (world, faces) in zip(signature, triangles, strict=True):
         parts.append(world)
-        uvs.append(None if mesh.uvs is None else uv_rows(mesh.uvs, faces))
+        corners.append(mesh_corners(mesh, faces, np.frombuffer(matrix).reshape(4, 4)))
         materials.append(np.full(faces.shape[0], material_index[node.material], np.int32))
         owners.append(np.full(faces.shape[0], node.id, np.int64))
         locals_.append(np.arange(faces.shape[0], dtype=np.int64))
@@ -328,13 +330,11 @@ def _bake(signature: tuple, triangles: list, material_index: dict, cluster: int)
             raise SceneError(
                 all_zero_area(str(node.name or node.id), part, mesh.vertices[mesh.faces])
             )
-    uv = None
-    if any(rows is not None for rows in uvs):
-        rows = [np.zeros((p.shape[0], 6), np.float32) if r is None else r
-                for p, r in zip(parts, uvs, strict=True)]  # fmt: skip
-        uv = np.concatenate(rows)
     label = "scene" if cluster == 0 else f"static cluster {cluster}"
-    accel = _accel(signature, tri_verts, center, zero_area, np.concatenate(materials), uv, label)
+    corners = joined_corners(corners, [p.shape[0] for p in parts])
+    accel = _accel(
+        signature, tri_verts, center, zero_area, np.concatenate(materials), corners, label
+    )
     owner = np.stack([np.concatenate(owners), np.concatenate(locals_)], axis=1)
     runs = np.stack([ends - [p.shape[0] for p in parts], [n.id for n, _, _ in signature]], axis=1)
     return dataclasses.replace(accel, owner=owner.astype(np.int32), node_runs=runs.astype(np.int32))
@@ -365,7 +365,7 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
     ):
         return previous
     node_offset, tri_offset = {}, {}
-    bounds, child, verts, prim, material, uv = [], [], [], [], [], []
+    bounds, child, verts, prim, material, corners = [], [], [], [], [], []
     nodes = tris = 0
     for key, accel in zip(keys, accels, strict=True):
         node_offset[key] = nodes
@@ -375,7 +375,7 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
         verts.append(accel.bvh.tri_verts)
         prim.append(accel.bvh.tri_prim)
         material.append(accel.tri_material)
-        uv.append(accel.tri_uv)
+        corners.append(accel.corners)
         nodes += accel.bvh.node_bounds.shape[0]
         tris += accel.bvh.tri_verts.shape[0]
     if tris > bvh_module.MAX_TRIANGLES:
@@ -384,11 +384,8 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
     def joined(parts, shape, dtype):
         return np.concatenate(parts) if parts else np.zeros(shape, dtype)
 
-    if all(rows is None for rows in uv):
-        uv = []  # no mesh of the pool has UVs: kernels never read them
-    else:
-        uv = [np.zeros((v.shape[0], 6), np.float32) if r is None else r
-              for v, r in zip(verts, uv, strict=True)]  # fmt: skip
+    # (0, width) when no mesh of the pool has the attribute: kernels never read it.
+    uv, normal = joined_corners(corners, [v.shape[0] for v in verts])
 
     return Pool(
         keys,
@@ -400,7 +397,8 @@ def make_pool(keys: tuple[str, ...], accels: tuple[MeshAccel, ...], previous: Po
         joined(verts, (0, 9), np.float32),
         joined(prim, (0,), np.int32),
         joined(material, (0,), np.int32),
-        joined(uv, (0, 6), np.float32),
+        np.zeros((0, 6), np.float32) if uv is None else uv,
+        np.zeros((0, 9), np.float32) if normal is None else normal,
     )
 
 
@@ -569,6 +567,7 @@ def compile_scene(
         mat_param=materials.param,
         mat_texture=textures.material,
         tri_uv=(pools[0].tri_uv, pools[1].tri_uv),
+        tri_normal=(pools[0].tri_normal, pools[1].tri_normal),
         tex_pixels=textures.pixels,
         tex_info=textures.info,
         tex_scale=textures.scale,

@@ -241,6 +241,30 @@ def surface(s, k, j, b0, b1, b2):
 
 
 @jit_inline
+def shading_normal(s, k, j, b0, b1, b2, n_w):
+    """The unit shading normal of instance ``k``'s triangle ``j`` at barycentrics (b0, b1, b2),
+    world space, on the side of its geometric normal ``n_w``: ``(True, n)``, its vertex normals
+    interpolated, or ``(False, n_w)`` where the triangle has none (a flat mesh, or normals that
+    cancel)."""
+    rows = pick(s.tri_normal, s.inst_pool[k])
+    if rows.shape[0] == 0:
+        return False, n_w
+    x = b0 * rows[j, 0] + b1 * rows[j, 3] + b2 * rows[j, 6]
+    y = b0 * rows[j, 1] + b1 * rows[j, 4] + b2 * rows[j, 7]
+    z = b0 * rows[j, 2] + b1 * rows[j, 5] + b2 * rows[j, 8]
+    n = (np.float64(x), np.float64(y), np.float64(z))
+    if not s.inst_identity[k]:
+        n = apply_normal(s.inst_inv, k, n)
+    length2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
+    if not length2 > 1e-24:
+        return False, n_w
+    inv_len = 1.0 / math.sqrt(length2)
+    if n[0] * n_w[0] + n[1] * n_w[1] + n[2] * n_w[2] < 0.0:
+        inv_len = -inv_len
+    return True, (n[0] * inv_len, n[1] * inv_len, n[2] * inv_len)
+
+
+@jit_inline
 def offset_distance(s, k, p_o, err_o, n_o):
     """How far along the object normal ``n_o`` a ray leaving instance ``k``'s point ``p_o``
     (error ``err_o``) must start: past the point's error bound, past the error of mapping the

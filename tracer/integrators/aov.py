@@ -25,7 +25,7 @@ adds the scene's origin where the camera rays hit.
 
 import numpy as np
 
-from tracer.geometry.scene_intersect import material_of, surface
+from tracer.geometry.scene_intersect import material_of, shading_normal, surface
 from tracer.integrators import flags
 from tracer.kernel.jit import jit_inline
 from tracer.maths.vecmath import dot
@@ -60,12 +60,15 @@ LAYERS = {
 @jit_inline
 def vertex_aov(s, d, k, j, b0, b1, b2, materials, plan):
     """What a path vertex gives the AOVs: ``(final, colour, normal, point)``. A non-delta
-    vertex is ``final``: ``colour`` is its albedo, ``normal`` its geometric normal facing the
-    ray; a delta vertex passes the colour that tints what lies beyond it. ``point`` is the
-    render-space hit point."""
+    vertex is ``final``: ``colour`` is its albedo, ``normal`` its shading normal (the geometric
+    one without the plan's ``SHADING_NORMALS``) facing the ray; a delta vertex passes the colour
+    that tints what lies beyond it. ``point`` is the render-space hit point."""
     mat = material_of(s, k, j)
     _, _, _, p, ng = surface(s, k, j, b0, b1, b2)
-    n = ng if dot(ng, d) < 0.0 else (-ng[0], -ng[1], -ng[2])
+    front = dot(ng, d) < 0.0  # the geometric normal decides the side; ns lies on ng's
+    if plan & flags.SHADING_NORMALS:
+        _, ng = shading_normal(s, k, j, b0, b1, b2, ng)
+    n = ng if front else (-ng[0], -ng[1], -ng[2])
     albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
               np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
     if plan & flags.TEXTURES:

@@ -55,7 +55,9 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
     - indirect light is needed iff the path can have more than two vertices, some non-emissive
       material reflects anything, and something emits;
     - textures are needed iff a visible object's material has a texture and the integrator
-      reads base colours (all but ``ao``, ``normal`` and ``depth``).
+      reads base colours (all but ``ao``, ``normal`` and ``depth``);
+    - shading normals are needed iff a mesh in the scene has vertex normals and the integrator
+      shades with normals (all but ``albedo`` and ``depth``).
     """
     table = scene.lights
     weight = table.weight
@@ -162,6 +164,15 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
         "no textured material"
         if not textured
         else f"the {settings.integrator} output reads no base colour",
+    )
+    smooth = any(rows.shape[0] > 0 for rows in scene.arrays.tri_normal)
+    decide(
+        "shading_normals",
+        smooth and integrator.reads_normals,
+        "meshes with vertex normals",
+        "no mesh has vertex normals"
+        if not smooth
+        else f"the {settings.integrator} output reads no normal",
     )
     return EffectPlan(flags, reasons)
 

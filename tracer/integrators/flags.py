@@ -34,6 +34,9 @@ LIGHT_SAMPLES = 1 << 11
 """Next-event estimation at all."""
 TEXTURES = 1 << 12
 """Base-colour texture lookups where rays hit textured materials."""
+SHADING_NORMALS = 1 << 16
+"""Interpolated vertex normals where rays hit meshes that have them (off: every surface shades
+with its geometric normal, faceted)."""
 
 NO_MIS = 1 << 13
 """Not an effect, and never in a plan ``tracer.integrators.effects`` makes: a sampling switch for
@@ -65,6 +68,7 @@ EFFECTS = {
     "emitter_hits": EMITTER_HITS,
     "light_samples": LIGHT_SAMPLES,
     "textures": TEXTURES,
+    "shading_normals": SHADING_NORMALS,
 }
 ALL = sum(EFFECTS.values())
 MATERIAL_EFFECTS = SPECULAR | GLOSSY | REFRACTION | ABSORPTION

@@ -17,7 +17,7 @@ from tracer import config
 from tracer.compiled.arrays import SceneArrays
 from tracer.compiled.scene import CompiledScene
 from tracer.integrators import path, stream, surface, vertex
-from tracer.integrators.flags import INDIRECT, TEXTURES, light_kinds
+from tracer.integrators.flags import INDIRECT, SHADING_NORMALS, TEXTURES, light_kinds
 from tracer.integrators.pixels import PixelRun
 from tracer.maths import portable
 from tracer.shading.lights import light_arrays, scene_fields
@@ -43,6 +43,8 @@ class Integrator:
     """Whether it reads base colours (the plan's ``TEXTURES``)."""
     heat_map: bool = False
     """Whether its image is the work per pixel as a heat map, not the kernel's ``rgb``."""
+    reads_normals: bool = True
+    """Whether it shades with normals (the plan's ``SHADING_NORMALS``)."""
 
 
 def arrays_for_plan(scene: CompiledScene, flags: int) -> SceneArrays:
@@ -112,12 +114,17 @@ def _surface(name: str, output: int) -> Integrator:
             settings.ao_samples,
             settings.ao_distance * scene_diagonal(scene),
             bool(run.flags & TEXTURES),
+            bool(run.flags & SHADING_NORMALS),
         )
 
     def kernel(flags: int) -> Callable[..., None]:
         return surface.render_surface
 
-    return Integrator(name, {"single": kernel}, arguments, False, False, output == surface.ALBEDO)
+    reads_normals = output in (surface.AO, surface.NORMAL)
+    return Integrator(
+        name, {"single": kernel}, arguments, False, False, output == surface.ALBEDO,
+        reads_normals=reads_normals,
+    )  # fmt: skip
 
 
 REGISTRY: dict[str, Integrator] = {

@@ -22,6 +22,7 @@ from tracer.geometry.scene_intersect import (
     offset_distance,
     scene_closest,
     scene_occluded,
+    shading_normal,
     spawn,
     surface,
 )
@@ -61,6 +62,7 @@ def render_surface(
     ao_samples,
     ao_length,
     textures,
+    smooth,
     first,
     stride,
     stack_node,
@@ -74,7 +76,8 @@ def render_surface(
     ``first, first + stride, ...`` of the pixel run [p0, p1); arguments and outputs as the path
     kernel's (``tracer.integrators.path.path_kernel``), plus ``ao_samples`` occlusion rays per
     camera sample of length ``ao_length`` (render-space units), and ``textures``: whether the
-    albedo output applies base-colour textures (the effect plan's ``TEXTURES``). ``out_rays``
+    albedo output applies base-colour textures (the effect plan's ``TEXTURES``), and ``smooth``:
+    whether the normal and occlusion use shading normals (``SHADING_NORMALS``). ``out_rays``
     gets the rays traced per pixel: each camera ray, and each occlusion ray (``AO`` only).
     ``out_aov`` is untouched: AOVs come from the path integrators' paths."""
     s = borrow_scene(scene)
@@ -103,7 +106,11 @@ def render_surface(
                     continue
                 mat = material_of(s, k, j)
                 p_o, err_o, n_o, _, ng = surface(s, k, j, b0, b1, b2)
-                n = ng if dot(ng, d) < 0.0 else (-ng[0], -ng[1], -ng[2])
+                front = dot(ng, d) < 0.0
+                n = ng if front else (-ng[0], -ng[1], -ng[2])
+                if smooth:
+                    _, ns = shading_normal(s, k, j, b0, b1, b2, ng)
+                    n = ns if front else (-ns[0], -ns[1], -ns[2])
                 if output == DEPTH:
                     value = (t, t, t)
                 elif output == NORMAL:
@@ -121,6 +128,8 @@ def render_surface(
                     for r in range(ao_samples):
                         u1, u2 = uniform2(key, 1 + r)
                         w = to_world(square_to_cosine_hemisphere(u1, u2), u_s, u_t, n)
+                        if smooth and dot(w, ng) * dot(d, ng) >= 0.0:
+                            continue  # below the geometric surface: the surface itself blocks
                         origin = spawn(s, k, p_o, n_o, dist, ng, w)
                         blocked, c = scene_occluded(s, origin, w, ao_length, stack_node)
                         cost += c

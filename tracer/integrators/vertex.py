@@ -19,7 +19,13 @@ import math
 
 import numpy as np
 
-from tracer.geometry.scene_intersect import material_of, offset_distance, spawn, surface
+from tracer.geometry.scene_intersect import (
+    material_of,
+    offset_distance,
+    shading_normal,
+    spawn,
+    surface,
+)
 from tracer.integrators import flags
 from tracer.kernel.jit import jit_inline
 from tracer.maths.rng import uniform, uniform2
@@ -47,6 +53,7 @@ from tracer.shading.lights import (
     sample_triangle,
 )
 from tracer.shading.sampling import power_heuristic
+from tracer.shading.shading_normals import bent_normal, geometric_side, terminator
 from tracer.shading.textures import textured_albedo
 
 DIMS_PER_VERTEX = 8
@@ -161,6 +168,16 @@ def vertex_shader(materials: bool, lights: bool):
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
         front = cos_o > 0.0
         n = ng if front else (-ng[0], -ng[1], -ng[2])
+        wo = (-d[0], -d[1], -d[2])
+        # The shading normal (docs/materials.md, "Shading normals"): BSDFs are evaluated about
+        # ``ns``; the geometric ``n`` keeps deciding sides.
+        smooth = False
+        ns = n
+        if plan & flags.SHADING_NORMALS:
+            smooth, ns = shading_normal(s, k, j, b0, b1, b2, ng)
+            ns = ns if front else (-ns[0], -ns[1], -ns[2])
+            if smooth:
+                ns = bent_normal(ns, n, wo)
 
         # Absorb along a segment inside a dielectric (Beer-Lambert).
         if materials and plan & flags.ABSORPTION and not front:
@@ -194,7 +211,6 @@ def vertex_shader(materials: bool, lights: bool):
                   np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
         if plan & flags.TEXTURES:
             albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
-        wo = (-d[0], -d[1], -d[2])
         kind = DIFFUSE
         param = NO_PARAM
         delta = False
@@ -223,13 +239,18 @@ def vertex_shader(materials: bool, lights: bool):
             # The BSDF toward it: f cos, and its density for MIS.
             f = (0.0, 0.0, 0.0)
             p_bsdf = 0.0
+            if ok and smooth and geometric_side(n, wo, wi) != 1:
+                ok = False  # behind the geometric surface: no light leaks through it
             if ok:
                 if materials and kind != DIFFUSE:
-                    f, p_bsdf = bsdf_eval(kind, albedo, param, s.mat_param[mat], n, wo, wi)
+                    f, p_bsdf = bsdf_eval(kind, albedo, param, s.mat_param[mat], ns, wo, wi)
                 else:
-                    f = diffuse_eval(albedo, n, wi)
+                    f = diffuse_eval(albedo, ns, wi)
                     if mis and not delta_l:
-                        p_bsdf = diffuse_pdf(n, wi)
+                        p_bsdf = diffuse_pdf(ns, wi)
+                if smooth:
+                    g = terminator(ns, n, wi)
+                    f = (f[0] * g, f[1] * g, f[2] * g)
             if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
                 w = 1.0
                 if mis and not delta_l:
@@ -260,12 +281,21 @@ def vertex_shader(materials: bool, lights: bool):
         u1, u2 = uniform2(key, dim + 2)
         if materials and kind != DIFFUSE:
             u0 = uniform(key, dim + 4) if bsdf_needs_lobe_choice(kind) else 0.0
-            wi, weight, pdf, delta_prev = bsdf_sample(kind, albedo, param, s.mat_param[mat], n,
+            wi, weight, pdf, delta_prev = bsdf_sample(kind, albedo, param, s.mat_param[mat], ns,
                                                       wo, front, refraction, u0, u1,
                                                       u2)  # fmt: skip
         else:
-            wi, weight, pdf = diffuse_sample(albedo, n, u1, u2)
+            wi, weight, pdf = diffuse_sample(albedo, ns, u1, u2)
             delta_prev = False
+        if smooth and pdf > 0.0:
+            # A reflection must stay on the viewer's side of the geometric surface and a
+            # refraction cross it; a sample the shading normal sends the other way is lost.
+            reflected = dot(wi, ns) * dot(wo, ns) > 0.0
+            if geometric_side(n, wo, wi) != (1 if reflected else -1):
+                pdf = 0.0
+            elif reflected and not delta_prev:
+                g = terminator(ns, n, wi)
+                weight = (weight[0] * g, weight[1] * g, weight[2] * g)
         if pdf <= 0.0:
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
         beta = (beta[0] * weight[0], beta[1] * weight[1], beta[2] * weight[2])

@@ -161,6 +161,11 @@ class Sphere(Strict):
     type: Literal["sphere"]
     radius: Positive = 1.0
     subdivisions: int = Field(default=4, ge=0, le=config.MAX_SPHERE_SUBDIVISIONS)
+    smooth: bool = Field(
+        default=False,
+        description="Shade with the sphere's normals at the vertices, interpolated (round "
+        "however few its triangles); false: flat facets",
+    )
 
 
 class Plane(Strict):
@@ -244,6 +249,7 @@ EffectName = Literal[
     "refraction",
     "absorption",
     "textures",
+    "shading_normals",
 ]
 """Effects a user may switch off (docs/effects.md)."""
 

@@ -39,7 +39,7 @@ from tracer.scene.model import (
     frozen_array,
     make_mesh,
 )
-from tracer.scene.shapes import rectangle, shape_mesh, shape_uvs
+from tracer.scene.shapes import rectangle, shape_mesh, shape_normals, shape_uvs
 from tracer.shading.textures import material_texture, read_texture
 
 IDENTITY = frozen_array(np.eye(4), np.float64)
@@ -222,7 +222,9 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
         else:
             key = f"shape:{obj.shape.model_dump_json()}"
             if key not in meshes:
-                meshes[key] = make_mesh(*shape_mesh(obj.shape), label, shape_uvs(obj.shape))
+                meshes[key] = make_mesh(
+                    *shape_mesh(obj.shape), label, shape_uvs(obj.shape), shape_normals(obj.shape)
+                )
         parent = None
         if obj.parent is not None:
             if obj.parent not in names:

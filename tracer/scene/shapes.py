@@ -1,5 +1,6 @@
 """Built-in shapes as (vertices float64 (V, 3), faces int64 (F, 3)), counter-clockwise outward,
-and the UVs of those that have them (rectangles and planes: the unit square across the shape)."""
+the UVs of those that have them (rectangles and planes: the unit square across the shape), and
+the shading normals of a smooth sphere."""
 
 import numpy as np
 import trimesh
@@ -61,4 +62,13 @@ def shape_uvs(shape) -> np.ndarray | None:
         return RECTANGLE_UVS
     if isinstance(shape, fmt.Plane):
         return PLANE_UVS
+    return None
+
+
+def shape_normals(shape) -> np.ndarray | None:
+    """Shading normals per vertex of a built-in shape (float64 (V, 3)), or None if it shades
+    flat: a ``smooth`` sphere's are its vertices' directions from the centre."""
+    if isinstance(shape, fmt.Sphere) and shape.smooth:
+        vertices, _ = sphere(shape.radius, shape.subdivisions)
+        return vertices / shape.radius  # make_mesh normalises them exactly
     return None
