@@ -90,6 +90,9 @@ def same_array(a: np.ndarray, b: np.ndarray) -> bool:
 
 def assert_same_mesh(a: Mesh, b: Mesh) -> None:
     assert same_array(a.vertices, b.vertices) and same_array(a.faces, b.faces)
+    for name in ("uvs", "normals"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None) == (y is None) and (x is None or same_array(x, y)), name
 
 
 def assert_states_equal(a: SceneState, b: SceneState) -> None:

@@ -75,6 +75,13 @@ def test_snapshot_round_trip_is_exact():
         state,
         [
             so.AddMesh(mesh="odd", vertices=[[-0.0, 5e-324, 1e308]] * 3, faces=[[0, 1, 2]]),
+            so.AddMesh(
+                mesh="smooth",
+                vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+                faces=[[0, 1, 2]],
+                uvs=[[0, 0], [1, 0], [0, 1]],
+                normals=[[0.1, 0.2, 1.0], [0.0, 0.0, 3.0], [-0.3, 0.1, 1.0]],
+            ),
             so.SetTransform(node=1, transform=fmt.Transform(rotate=(10.0, 20.0, 30.0))),
             so.SetSky(radiance=(0.0, 0.5, 1e-9)),
         ],
@@ -83,6 +90,7 @@ def test_snapshot_round_trip_is_exact():
     assert_states_equal(state, decoded)
     assert not decoded.nodes[1].transform.flags.writeable
     assert not decoded.meshes["odd"].vertices.flags.writeable
+    assert decoded.meshes["smooth"].normals is not None and decoded.meshes["odd"].normals is None
 
 
 @pytest.mark.parametrize(

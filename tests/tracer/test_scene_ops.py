@@ -114,6 +114,44 @@ def test_mesh_ops():
     assert "tri2" not in gone.meshes and "tri2" in new.meshes
 
 
+def test_mesh_normals_through_the_ops():
+    """Normals given with a mesh are normalised; a smooth mesh whose vertices move without new
+    normals gets area-weighted ones from its moved triangles, given ones replace them, and a
+    flat mesh stays flat; bad normals are refused with the reason."""
+    leaning = [[0.0, 0.0, 2.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]
+    state = apply(
+        small_state(),
+        {"op": "add_mesh", "mesh": "q", "vertices": QUAD[0], "faces": QUAD[1], "normals": leaning},
+    )
+    normals = state.meshes["q"].normals
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(normals[0], [0.0, 0.0, 1.0])
+    assert not normals.flags.writeable
+    # Fold the quad along its diagonal: each vertex's normal becomes its faces' mean.
+    folded = np.array(QUAD[0], dtype=np.float64)
+    folded[2, 2] += 1.0
+    moved = apply(state, {"op": "update_vertices", "mesh": "q", "vertices": folded}).meshes["q"]
+    v, f = moved.vertices, moved.faces
+    face_normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    for vertex in range(4):
+        around = face_normals[(f == vertex).any(axis=1)].sum(axis=0)
+        np.testing.assert_allclose(moved.normals[vertex], around / np.linalg.norm(around))
+    given = apply(
+        state, {"op": "update_vertices", "mesh": "q", "vertices": folded, "normals": leaning}
+    ).meshes["q"]
+    np.testing.assert_array_equal(given.normals, normals)
+    flat = apply(state, {"op": "update_vertices", "mesh": "quad", "vertices": QUAD[0]})
+    assert flat.meshes["quad"].normals is None
+    for bad, message in (
+        ([[0.0, 0.0, 0.0]] * 4, "zero length"),
+        ([[0.0, 0.0, 1.0]] * 3, r"one \(x, y, z\) vector per vertex"),
+        ([[np.nan, 0.0, 1.0]] * 4, "finite"),
+    ):
+        with pytest.raises(SceneError, match=message):
+            apply(state, {"op": "replace_mesh", "mesh": "q", "vertices": QUAD[0],
+                          "faces": QUAD[1], "normals": bad})  # fmt: skip
+
+
 def test_add_node_defaults_and_explicit_id():
     old = small_state()
     new = apply(

@@ -258,6 +258,7 @@ def _build_state(header: _StateHeader, arrays: list[np.ndarray]) -> SceneState:
             f"mesh {name!r}",
             uvs.pop(name, None),
             normals.pop(name, None),
+            unit_normals=True,
         )
     if uvs:
         raise SceneError(f"UVs for mesh {next(iter(uvs))!r}, which does not exist")

@@ -59,10 +59,12 @@ def placed(vertices: np.ndarray, faces: np.ndarray, matrix: np.ndarray):
     return moved, (faces[:, ::-1] if portable.det3(matrix) < 0.0 else faces)
 
 
-def make_mesh(vertices, faces, label: str = "mesh", uvs=None, normals=None) -> Mesh:
+def make_mesh(
+    vertices, faces, label: str = "mesh", uvs=None, normals=None, unit_normals: bool = False
+) -> Mesh:
     """A validated mesh: at least one triangle, finite coordinates, indices in range, ``uvs``
     (if given) one finite pair per vertex, and ``normals`` (if given) one finite, non-zero
-    vector per vertex, normalised here."""
+    vector per vertex, normalised here unless ``unit_normals`` says they are already."""
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
@@ -86,7 +88,7 @@ def make_mesh(vertices, faces, label: str = "mesh", uvs=None, normals=None) -> M
             raise SceneError(f"{label}: the mesh has NaN or infinite UVs")
         uvs = frozen_array(uvs, np.float64)
     if normals is not None:
-        normals = vertex_normals.checked(normals, vertices.shape[0], label)
+        normals = vertex_normals.checked(normals, vertices.shape[0], label, unit_normals)
     return Mesh(frozen_array(vertices, np.float64), frozen_array(faces, np.int64), uvs, normals)
 
 

@@ -21,9 +21,10 @@ def _frozen(array: np.ndarray) -> np.ndarray:
     return array
 
 
-def checked(normals, vertex_count: int, label: str) -> np.ndarray:
+def checked(normals, vertex_count: int, label: str, unit: bool = False) -> np.ndarray:
     """``normals`` checked (one finite, non-zero vector per vertex) and scaled to unit length,
-    read-only; SceneError otherwise."""
+    read-only; SceneError otherwise. ``unit``: they are unit already (a state's, decoded) and
+    are kept bit for bit (normalising twice may move the last bit)."""
     normals = np.asarray(normals, dtype=np.float64)
     if normals.shape != (vertex_count, 3):
         raise SceneError(
@@ -33,6 +34,10 @@ def checked(normals, vertex_count: int, label: str) -> np.ndarray:
     if not np.isfinite(normals).all():
         raise SceneError(f"{label}: the mesh has NaN or infinite normals")
     length = _lengths(normals)
+    if unit:
+        if not (np.abs(length - 1.0) < 1e-9).all():
+            raise SceneError(f"{label}: a stored vertex normal is not of unit length")
+        return _frozen(normals)
     if not (length > 1e-12).all():
         raise SceneError(f"{label}: a vertex normal has zero length")
     return _frozen(normals / length[:, None])
