@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from tracer.compiled.corners import moved_normals
 from tracer.crosscheck.mitsuba_base import (
     Deviation,
     DeviationKind,
@@ -226,9 +227,11 @@ class _Writer(MaterialsWriter, EmittersWriter):
 
     def _integrator(self, root: ET.Element) -> None:
         render = self.state.render
-        if render.effects:
-            off = ", ".join(sorted(render.effects))
-            raise UnsupportedFeature(f"effects switched off ({off})", "Mitsuba renders them all")
+        # Mitsuba shades with vertex normals without the terminator's falloff: off is its twin.
+        if off := sorted(set(render.effects) - {"shadow_terminator"}):
+            raise UnsupportedFeature(
+                f"effects switched off ({', '.join(off)})", "Mitsuba renders them all"
+            )
         if render.integrator not in MITSUBA_TWINS:
             twins = " and ".join(repr(name) for name in MITSUBA_TWINS)
             raise UnsupportedFeature(
@@ -272,15 +275,29 @@ class _Writer(MaterialsWriter, EmittersWriter):
     # -- geometry and area lights
 
     def _write_ply(
-        self, index: int, name: str, vertices: np.ndarray, faces: np.ndarray, uvs=None
-    ) -> str:
+        self, index: int, name: str, vertices: np.ndarray, faces: np.ndarray, uvs=None,
+        normals=None,
+    ) -> str:  # fmt: skip
         relative = f"meshes/{index:04d}-{slug(name)}.ply"
         path = self.out / relative
         path.parent.mkdir(parents=True, exist_ok=True)
         visual = None if uvs is None else trimesh.visual.TextureVisuals(uv=uvs)
-        mesh = trimesh.Trimesh(vertices, faces, visual=visual, process=False)
-        path.write_bytes(mesh.export(file_type="ply", encoding="binary", vertex_normal=False))
+        mesh = trimesh.Trimesh(
+            vertices, faces, visual=visual, vertex_normals=normals, process=False
+        )
+        data = mesh.export(file_type="ply", encoding="binary", vertex_normal=normals is not None)
+        path.write_bytes(data)
         return relative
+
+    def _world_normals(self, mesh: WorldMesh) -> np.ndarray | None:
+        """The mesh's shading normals in world space, pointing to the side its (world) faces
+        face, or None for a flat mesh."""
+        normals = self.state.meshes[self.state.nodes[mesh.node].mesh].normals
+        if normals is None:
+            return None
+        matrix = self.state.world_transform(mesh.node)
+        # The cofactor matrix is det times the inverse transpose; a mirror's faces are reversed.
+        return moved_normals(normals, matrix) * (1.0 if portable.det3(matrix) > 0.0 else -1.0)
 
     def _mitsuba_uvs(self, mesh: WorldMesh) -> np.ndarray | None:
         """The UVs Mitsuba's ``bitmap`` needs for a textured mesh (None without a texture).
@@ -312,11 +329,21 @@ class _Writer(MaterialsWriter, EmittersWriter):
                 "Mitsuba's area lights emit from the front only: the open mesh is duplicated, "
                 f"wound the other way, {EMITTER_OFFSET:g} scene diagonals behind",
             )
+        normals = self._world_normals(mesh)
+        if normals is not None and "shadow_terminator" not in self.state.render.effects:
+            self.note(
+                "shadow terminator",
+                "model",
+                "Mitsuba has no terminator falloff (Chiang et al. 2019): with it, light on "
+                "coarse smooth meshes is darker here near where it grazes the facets",
+            )
         for part, (name, vertices, faces) in enumerate(copies):
             shape = child(root, "shape", type="ply")
-            filename = self._write_ply(2 * index + part, name, vertices, faces, uvs)
+            smooth = normals if part == 0 else None  # the back copy of an emitter shades flat
+            filename = self._write_ply(2 * index + part, name, vertices, faces, uvs, smooth)
             child(shape, "string", name="filename", value=filename)
-            child(shape, "boolean", name="face_normals", value="true")
+            if smooth is None:
+                child(shape, "boolean", name="face_normals", value="true")
             child(shape, "ref", id=bsdf_id)
             if emits:
                 emitter = child(shape, "emitter", type="area")

@@ -14,7 +14,14 @@ did not switch off, whatever the scene needs: the reference the plan is checked 
 
 from dataclasses import dataclass
 
-from tracer.integrators.flags import ALL, EFFECTS, LIGHT_SAMPLES, SHADOWS
+from tracer.integrators.flags import (
+    ALL,
+    EFFECTS,
+    LIGHT_SAMPLES,
+    SHADING_NORMALS,
+    SHADOW_TERMINATOR,
+    SHADOWS,
+)
 from tracer.integrators.registry import REGISTRY
 from tracer.scene import format as fmt
 from tracer.shading import bsdf, lights
@@ -57,7 +64,8 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
     - textures are needed iff a visible object's material has a texture and the integrator
       reads base colours (all but ``ao``, ``normal`` and ``depth``);
     - shading normals are needed iff a mesh in the scene has vertex normals and the integrator
-      shades with normals (all but ``albedo`` and ``depth``).
+      shades with normals (all but ``albedo`` and ``depth``); the shadow terminator's falloff
+      iff shading normals are and the integrator samples lights.
     """
     table = scene.lights
     weight = table.weight
@@ -174,6 +182,12 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
         if not smooth
         else f"the {settings.integrator} output reads no normal",
     )
+    decide(
+        "shadow_terminator",
+        bool(flags & SHADING_NORMALS) and integrator.samples_lights,
+        "shading normals on surfaces that reflect light",
+        "no shading normals" if not flags & SHADING_NORMALS else "no reflected light",
+    )
     return EffectPlan(flags, reasons)
 
 
@@ -205,4 +219,6 @@ def effect_plan(scene, settings: fmt.RenderSettings) -> EffectPlan:
             reasons[name] = "switched off in render.effects"
     if not flags & LIGHT_SAMPLES:
         flags &= ~SHADOWS
+    if not flags & SHADING_NORMALS:
+        flags &= ~SHADOW_TERMINATOR
     return EffectPlan(flags, reasons)

@@ -37,6 +37,10 @@ TEXTURES = 1 << 12
 SHADING_NORMALS = 1 << 16
 """Interpolated vertex normals where rays hit meshes that have them (off: every surface shades
 with its geometric normal, faceted)."""
+SHADOW_TERMINATOR = 1 << 17
+"""Chiang et al.'s falloff of light reflected where shading and geometric normals disagree
+(``tracer.shading.shading_normals.terminator``); off: shading normals without it, as Mitsuba and
+pbrt shade."""
 
 NO_MIS = 1 << 13
 """Not an effect, and never in a plan ``tracer.integrators.effects`` makes: a sampling switch for
@@ -69,6 +73,7 @@ EFFECTS = {
     "light_samples": LIGHT_SAMPLES,
     "textures": TEXTURES,
     "shading_normals": SHADING_NORMALS,
+    "shadow_terminator": SHADOW_TERMINATOR,
 }
 ALL = sum(EFFECTS.values())
 MATERIAL_EFFECTS = SPECULAR | GLOSSY | REFRACTION | ABSORPTION

@@ -248,7 +248,7 @@ def vertex_shader(materials: bool, lights: bool):
                     f = diffuse_eval(albedo, ns, wi)
                     if mis and not delta_l:
                         p_bsdf = diffuse_pdf(ns, wi)
-                if smooth:
+                if smooth and plan & flags.SHADOW_TERMINATOR:
                     g = terminator(ns, n, wi)
                     f = (f[0] * g, f[1] * g, f[2] * g)
             if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
@@ -293,7 +293,7 @@ def vertex_shader(materials: bool, lights: bool):
             reflected = dot(wi, ns) * dot(wo, ns) > 0.0
             if geometric_side(n, wo, wi) != (1 if reflected else -1):
                 pdf = 0.0
-            elif reflected and not delta_prev:
+            elif reflected and not delta_prev and plan & flags.SHADOW_TERMINATOR:
                 g = terminator(ns, n, wi)
                 weight = (weight[0] * g, weight[1] * g, weight[2] * g)
         if pdf <= 0.0:

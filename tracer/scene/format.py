@@ -250,6 +250,7 @@ EffectName = Literal[
     "absorption",
     "textures",
     "shading_normals",
+    "shadow_terminator",
 ]
 """Effects a user may switch off (docs/effects.md)."""
 
