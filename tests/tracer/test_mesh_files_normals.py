@@ -12,6 +12,7 @@ import trimesh
 from tests.helpers import tiny_scene, write_json
 from tracer.errors import SceneError
 from tracer.scene import format as fmt
+from tracer.scene import vertex_normals
 from tracer.scene.gltf_features import gltf_json, has_normals
 from tracer.scene.loader import load_scene
 from tracer.scene.mesh_files import load_file_model, load_mesh_file
@@ -64,12 +65,13 @@ def test_gltf_normals_load_exactly_and_move_with_the_node_matrix(tmp_path):
     (own,) = model.meshes.values()
     np.testing.assert_array_equal(own.vertices, mesh.vertices.astype(np.float32))
     np.testing.assert_allclose(own.normals, unit(written), rtol=0, atol=1e-15)
-    np.testing.assert_allclose(model.parts[0][1], NODE_MATRIX, rtol=0, atol=1e-7)
+    matrix = model.parts[0][1]  # as the file stores it
+    np.testing.assert_allclose(matrix, NODE_MATRIX, rtol=0, atol=1e-7)
 
     baked = load_mesh_file(path)
-    linear = np.linalg.inv(NODE_MATRIX[:3, :3]).T
+    linear = np.linalg.inv(matrix[:3, :3]).T
     expected = unit(written @ linear.T)
-    np.testing.assert_allclose(baked.normals, expected, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(baked.normals, expected, rtol=0, atol=1e-14)
     np.testing.assert_array_equal(baked.faces, mesh.faces[:, ::-1])  # mirrored: reversed
 
 
@@ -271,3 +273,23 @@ def test_bad_normal_options_are_scene_errors(tmp_path, options, problem):
         load_scene(path)
     message = str(info.value)
     assert problem in message and "\n" not in message, message
+
+
+def test_creased_normals_on_random_meshes():
+    """On bumpy closed spheres at random angles: corners keep their positions, normals are
+    unit and the same bits on every call; at 180 degrees nothing is split and the normals are
+    the area-weighted ones."""
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        ball = trimesh.creation.icosphere(2)
+        vertices = ball.vertices * rng.uniform(0.8, 1.2, size=(len(ball.vertices), 1))
+        angle = float(rng.uniform(1.0, 90.0))
+        source, faces, normals = vertex_normals.creased(vertices, ball.faces, angle)
+        np.testing.assert_array_equal(vertices[source][faces], vertices[ball.faces])
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, rtol=0, atol=1e-15)
+        again = vertex_normals.creased(vertices, ball.faces, angle)
+        assert normals.tobytes() == again[2].tobytes()
+        source, faces, normals = vertex_normals.creased(vertices, ball.faces, 180.0)
+        np.testing.assert_array_equal(source, np.arange(len(vertices)))
+        smooth = vertex_normals.area_weighted(vertices, ball.faces, np.zeros_like(vertices))
+        np.testing.assert_allclose(normals, smooth, rtol=0, atol=1e-14)

@@ -1,4 +1,5 @@
-"""Mesh files (OBJ, PLY, STL, glTF, GLB) through trimesh: triangles with their UVs, and the
+"""Mesh files (OBJ, PLY, STL, glTF, GLB) through trimesh: triangles with their UVs and shading
+normals (the file's, or smoothed by angle as the scene's ``MeshFile`` asks), and the
 file's own materials mapped onto ours (glTF metallic-roughness, OBJ/MTL diffuse colours and
 ``map_Kd``), with their base-colour textures. The mapping table is in docs/materials.md.
 
