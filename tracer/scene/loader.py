@@ -163,10 +163,11 @@ def load_warnings(path: str | Path) -> list[str]:
     its glTF files, one line per feature and file (``tracer.scene.gltf_features``): about
     materials only for files whose own materials are used."""
     path = Path(path)
-    files = {path.name: (path, True)}  # reference -> (file, its own materials used)
-    if path.suffix.lower() not in MESH_SUFFIXES:
+    files: dict[str, tuple[Path, bool]] = {}  # reference -> (file, its own materials used)
+    if path.suffix.lower() in MESH_SUFFIXES:
+        files[path.name] = (path, True)
+    else:
         scene = fmt.SceneFile.model_validate_json(path.read_text(encoding="utf-8"))
-        files = {}
         for obj in scene.objects:
             if isinstance(obj.shape, fmt.MeshFile):
                 reference = obj.shape.path

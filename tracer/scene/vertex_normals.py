@@ -119,7 +119,7 @@ def creased(vertices: np.ndarray, faces: np.ndarray, angle_deg: float):
 
 def _joined_corners(at: np.ndarray, unit: np.ndarray, has_area: np.ndarray, cos_limit: float):
     """A group label per face corner (F * 3, corner ``3 f + k``): the corners at one position of
-    two faces joined across an edge they share (both of area, normals at a cosine of at least
+    two faces joined across an edge they share (both of area, normals at a cosine above
     ``cos_limit``) get one label. On an edge of more than two faces, faces are joined to the
     next one in face order."""
     corner = np.arange(at.size)
