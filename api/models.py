@@ -98,6 +98,11 @@ class SceneDetail(ScenePublic):
         "skipped ones and the rule behind each (docs/effects.md)"
     )
     node_list: list[dict]
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="what loading the scene ignored or approximated of its glTF files, one "
+        "line per feature and file (docs/materials.md, the glTF feature table)",
+    )
 
 
 class ScenesPublic(BaseModel):

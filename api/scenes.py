@@ -48,7 +48,7 @@ from tracer.errors import SceneError
 from tracer.io.files import write_atomic
 from tracer.maths import portable
 from tracer.scene.codec import decode_commit, decode_state, encode_commit, encode_state
-from tracer.scene.loader import MESH_SUFFIXES, load_scene
+from tracer.scene.loader import MESH_SUFFIXES, load_scene, load_warnings
 from tracer.scene.model import SceneState
 from tracer.scene.ops import Commit
 from tracer.shading.lights import mean_sky_radiance
@@ -73,6 +73,8 @@ class SceneEntry:
     lock: threading.Lock = field(default_factory=threading.Lock)
     summary_cache: dict = field(default_factory=dict)
     commits_since_compaction: int = 0
+    warnings: list[str] = field(default_factory=list)
+    """What loading the uploaded scene ignored or approximated of its glTF files."""
 
     @property
     def version(self) -> int:
@@ -369,6 +371,7 @@ class SceneRepository:
             raise ApiError(422, f"{entry}: no such file in the upload", "missing_file")
         check_references(files)
         state = load_scene(scene_path)  # SceneError -> 422
+        warnings = load_warnings(scene_path)
         triangles = self._triangles_within_limit(state, "the scene has")
         state = dataclasses.replace(state, version=0)
         scene_id = new_id("s")
@@ -380,7 +383,7 @@ class SceneRepository:
         self.store.add_scene(scene_id, name, source, str(entry), triangles)
         upload.scene_id = scene_id
         graph = SceneGraph(state, key=scene_id)
-        entry_obj = SceneEntry(scene_id, name, source, directory, graph)
+        entry_obj = SceneEntry(scene_id, name, source, directory, graph, warnings=warnings)
         entry_obj.summary_cache[state.version] = described
         with self._lock:
             self._entries[scene_id] = entry_obj
@@ -411,7 +414,10 @@ class SceneRepository:
                 500, f"scene {scene_id} cannot be restored: {reason}", "corrupt_scene"
             ) from None
         graph = SceneGraph(state, key=scene_id)
-        entry = SceneEntry(scene_id, record["name"], record["source"], directory, graph)
+        warnings = _upload_warnings(directory / "files", record.get("entry"))
+        entry = SceneEntry(
+            scene_id, record["name"], record["source"], directory, graph, warnings=warnings
+        )
         with self._lock:
             return self._entries.setdefault(scene_id, entry)
 
@@ -471,7 +477,7 @@ class SceneRepository:
             cached = self._compile(entry.id, state)
             entry.summary_cache.clear()
             entry.summary_cache[state.version] = cached
-        return {**cached, "version": state.version}
+        return {**cached, "version": state.version, "warnings": entry.warnings}
 
     def delete(self, scene_id: str) -> None:
         if not _plausible_id(scene_id) or self.store.scene(scene_id) is None:
@@ -485,6 +491,14 @@ class SceneRepository:
             trash = self.tmp / f"deleted-{scene_id}"
             target.rename(trash)
             shutil.rmtree(trash, ignore_errors=True)
+
+
+def _upload_warnings(files: Path, entry: str | None) -> list[str]:
+    """``load_warnings`` of a kept upload's scene file (none if it cannot be read again)."""
+    try:
+        return load_warnings(inside(files, PurePosixPath(entry))) if entry else []
+    except (OSError, ValueError, SceneError, ApiError):
+        return []
 
 
 def _plausible_id(ident: str) -> bool:

@@ -1,11 +1,12 @@
-"""``tilerender info``: describe a scene (geometry, materials, lights, camera) as JSON."""
+"""``tilerender info``: describe a scene (geometry, materials, lights, camera, what it ignores
+of its glTF files) as JSON."""
 
 import argparse
 import json
 import sys
 
 from tracer.compiled.scene import compile_scene
-from tracer.scene.loader import load_scene
+from tracer.scene.loader import load_scene, load_warnings
 
 
 def run(args: argparse.Namespace) -> int:
@@ -28,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
         "bytes_per_triangle": round(scene.nbytes / max(1, stats.triangles), 1),
         "camera": scene.camera.model_dump(),
         "render": scene.render.model_dump(),
+        "warnings": load_warnings(args.scene),
     }
     json.dump(report, sys.stdout, indent=2)
     print()

@@ -135,10 +135,32 @@ FORMAT = "tilerender/1"
 
 
 class MeshFile(Strict):
-    """Triangles from a file (OBJ, PLY, STL, glTF, GLB), relative to the scene file."""
+    """Triangles from a file (OBJ, PLY, STL, glTF, GLB), relative to the scene file, with the
+    file's shading normals or ones smoothed by angle (docs/scene-format.md)."""
 
     type: Literal["file"] = "file"
     path: FilePath
+    normals: Literal["file", "flat"] = Field(
+        default="file",
+        description="file: shade with the file's vertex normals (glTF NORMAL, OBJ vn, PLY "
+        "nx ny nz) where it has them; flat: ignore them and shade every triangle flat",
+    )
+    smooth_angle: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=180.0,
+        allow_inf_nan=False,
+        description="Degrees: for meshes without normals in the file, faces meeting at an edge "
+        "at less than this angle are shaded smooth across it, sharper edges stay creased "
+        "(default: such meshes shade flat)",
+    )
+
+    @model_validator(mode="after")
+    def _check(self) -> "MeshFile":
+        if self.normals == "flat" and self.smooth_angle is not None:
+            raise ValueError('smooth_angle smooths the shading, normals "flat" asks for none: '
+                             "give one of them")  # fmt: skip
+        return self
 
 
 class Rectangle(Strict):

@@ -28,7 +28,8 @@ from tracer.scene.animation import (
 )
 from tracer.scene.checks import check_textures
 from tracer.scene.environment import EnvironmentMap, read_environment_image
-from tracer.scene.mesh_files import FileModel, load_file_model, load_mesh_file
+from tracer.scene.gltf_features import feature_warnings, gltf_json
+from tracer.scene.mesh_files import FileModel, load_file_model, load_mesh_file, shading_key
 from tracer.scene.model import (
     Animation,
     CameraKey,
@@ -157,6 +158,30 @@ def load_scene(path: str | Path) -> SceneState:
     return scene_from_file_model(scene, path.parent, source=str(path))
 
 
+def load_warnings(path: str | Path) -> list[str]:
+    """What loading ``path`` (a scene :func:`load_scene` accepts) ignores or approximates of
+    its glTF files, one line per feature and file (``tracer.scene.gltf_features``): about
+    materials only for files whose own materials are used."""
+    path = Path(path)
+    files: dict[str, tuple[Path, bool]] = {}  # reference -> (file, its own materials used)
+    if path.suffix.lower() in MESH_SUFFIXES:
+        files[path.name] = (path, True)
+    else:
+        scene = fmt.SceneFile.model_validate_json(path.read_text(encoding="utf-8"))
+        for obj in scene.objects:
+            if isinstance(obj.shape, fmt.MeshFile):
+                reference = obj.shape.path
+                own = files[reference][1] if reference in files else False
+                target = resolve_reference(path.parent, reference)
+                files[reference] = (target, own or obj.material is None)
+    warnings = []
+    for reference, (file, own_materials) in files.items():
+        document = gltf_json(file)
+        if document is not None:
+            warnings += [f"{reference}: {w}" for w in feature_warnings(document, own_materials)]
+    return warnings
+
+
 def _reject_constant(name: str):
     raise ValueError(f"non-finite number {name} is not allowed")
 
@@ -194,31 +219,38 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
     materials: dict[str, fmt.Material] = dict(scene.materials)
     textures = material_textures(scene.materials, scene_dir)
     file_models: dict[str, FileModel] = {}
+    file_materials: dict[str, str] = {}
     children: list[tuple[int, FileModel]] = []
     for i, obj in enumerate(scene.objects):
         label = obj.name or f"objects[{i}]"
         if obj.material is None:
             key = None
             reference = obj.shape.path
-            if reference not in file_models:
+            loaded_as = reference + shading_key(obj.shape)
+            if loaded_as not in file_models:
                 model = load_file_model(
-                    resolve_reference(scene_dir, reference), reference, f"file:{reference}#"
+                    resolve_reference(scene_dir, reference),
+                    reference,
+                    f"file:{loaded_as}#",
+                    obj.shape,
                 )
                 for name in model.materials:
-                    if name in materials:
+                    if name in materials and file_materials.get(name) != reference:
                         raise SceneError(
                             f"{label}: the file's material {name!r} has the name of a material "
                             "of the scene; rename that one"
                         )
-                file_models[reference] = model
+                    file_materials[name] = reference
+                file_models[loaded_as] = model
                 meshes.update(model.meshes)
                 materials.update(model.materials)
                 textures.update(model.textures)
-            children.append((i, file_models[reference]))
+            children.append((i, file_models[loaded_as]))
         elif isinstance(obj.shape, fmt.MeshFile):
-            key = f"file:{obj.shape.path}"
+            key = f"file:{obj.shape.path}{shading_key(obj.shape)}"
             if key not in meshes:
-                meshes[key] = load_mesh_file(resolve_reference(scene_dir, obj.shape.path))
+                path = resolve_reference(scene_dir, obj.shape.path)
+                meshes[key] = load_mesh_file(path, obj.shape)
         else:
             key = f"shape:{obj.shape.model_dump_json()}"
             if key not in meshes:

@@ -1,14 +1,13 @@
-"""Mesh files (OBJ, PLY, STL, glTF, GLB) through trimesh: triangles with their UVs, and the
+"""Mesh files (OBJ, PLY, STL, glTF, GLB) through trimesh: triangles with their UVs and shading
+normals (the file's, or smoothed by angle as the scene's ``MeshFile`` asks), and the
 file's own materials mapped onto ours (glTF metallic-roughness, OBJ/MTL diffuse colours and
 ``map_Kd``), with their base-colour textures. The mapping table is in docs/materials.md.
 
 Every failure raises :class:`SceneError` with a one-line message.
 """
 
-import json
 import logging
 import math
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import trimesh
 from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
+from tracer.scene import gltf_features, vertex_normals
 from tracer.scene.model import Mesh, frozen_array, make_mesh, placed
 from tracer.shading.textures import srgb_to_linear, texture_from_image
 
@@ -28,6 +28,8 @@ TRANSMISSION_THRESHOLD = 0.5
 """A glTF material at least this transmissive (KHR_materials_transmission) becomes a
 dielectric."""
 DEFAULT_IOR = 1.5
+FILE_NORMALS = fmt.MeshFile(path="-")
+"""The default shading: the file's normals where it has them, else flat."""
 MIN_ATTENUATION = 1e-6
 """KHR_materials_volume attenuation colours are clamped above this before the logarithm."""
 
@@ -88,27 +90,91 @@ def mesh_uvs(geometry: trimesh.Trimesh) -> np.ndarray | None:
     return np.asarray(uv, dtype=np.float64)[:, :2]
 
 
-def load_mesh_file(path: Path) -> Mesh:
+def file_normals(geometry: trimesh.Trimesh, in_file: bool) -> np.ndarray | None:
+    """The normals per vertex the file gives a mesh (glTF NORMAL, OBJ vn, PLY nx ny nz), in
+    trimesh's vertex order, or None. trimesh keeps the normals it reads in its cache and
+    computes others only when asked, so an entry there before anyone asked is the file's;
+    ``in_file`` is false when the file's JSON says it has none (glTF)."""
+    cached = geometry._cache.cache.get("vertex_normals") if in_file else None
+    if cached is None or np.shape(cached) != np.shape(geometry.vertices):
+        return None
+    return np.asarray(cached, dtype=np.float64)
+
+
+def part_arrays(part: Part, label: str, in_file: bool, shape: fmt.MeshFile):
+    """``(vertices, faces, uvs, normals)`` of a part in its own coordinates, the normals as
+    ``shape`` asks: the file's (repaired where one has no length), smooth with creases at
+    ``smooth_angle`` where the file has none, else None (flat). Checked (``make_mesh``) when
+    normals are computed from the triangles."""
+    vertices = np.asarray(part.mesh.vertices, dtype=np.float64)
+    faces = np.asarray(part.mesh.faces, dtype=np.int64)
+    uvs = mesh_uvs(part.mesh)
+    normals = file_normals(part.mesh, in_file) if shape.normals == "file" else None
+    if len(faces) == 0:
+        return vertices, faces, uvs, None
+    if normals is None and shape.smooth_angle is None:
+        return vertices, faces, uvs, None
+    make_mesh(vertices, faces, label, uvs)
+    if normals is not None:
+        return vertices, faces, uvs, vertex_normals.repaired(normals, vertices, faces)
+    return _creased(vertices, faces, uvs, shape.smooth_angle)
+
+
+def _creased(vertices, faces, uvs, angle: float):
+    """``vertex_normals.creased`` at ``angle`` degrees, vertices and UVs split to follow."""
+    source, faces, normals = vertex_normals.creased(vertices, faces, angle)
+    return vertices[source], faces, None if uvs is None else uvs[source], normals
+
+
+def shading_key(shape: fmt.MeshFile) -> str:
+    """What tells a file's meshes with the normals ``shape`` asks for from the same file's
+    meshes with the default normals, for their keys: empty for the default."""
+    if shape.normals == "flat":
+        return "?normals=flat"
+    return "" if shape.smooth_angle is None else f"?smooth_angle={shape.smooth_angle!r}"
+
+
+def load_mesh_file(path: Path, shape: fmt.MeshFile | None = None) -> Mesh:
     """All triangles of a mesh file in its own coordinates (glTF node transforms applied, as
-    trimesh bakes them), with UVs if every part has them."""
+    trimesh bakes them), with UVs if every part has them and normals (``part_arrays``) if
+    any part has them (the others then get their flat normals, split per face)."""
+    shape = shape or FILE_NORMALS
     loaded = load_trimesh(path)
     if isinstance(loaded, trimesh.Scene) and not loaded.geometry:
         raise SceneError(f"{path.name}: the file contains no meshes")
     parts = file_parts(path, loaded)
     if not parts:
         raise SceneError(f"{path.name}: the file holds no triangles (points or lines only?)")
-    vertices, faces, uvs = [], [], []
+    in_file = _normals_in_file(path)
+    arrays = [part_arrays(part, path.name, in_file, shape) for part in parts]
+    smooth = any(normals is not None for *_, normals in arrays)
+    vertices, faces, uvs, normals = [], [], [], []
     count = 0
-    for part in parts:
-        baked, part_faces = placed(
-            part.mesh.vertices, np.asarray(part.mesh.faces, np.int64), part.matrix
-        )
+    for part, arrays_of_part in zip(parts, arrays, strict=True):
+        part_vertices, part_faces, part_uvs, part_normals = arrays_of_part
+        if smooth and part_normals is None:  # flat: a vertex per face corner, face normals
+            if len(part_faces):
+                make_mesh(part_vertices, part_faces, path.name, part_uvs)
+            part_vertices, part_faces, part_uvs, part_normals = _creased(
+                part_vertices, part_faces, part_uvs, 0.0
+            )
+        baked, part_faces = placed(part_vertices, part_faces, part.matrix)
         vertices.append(baked)
         faces.append(part_faces + count)
-        uvs.append(mesh_uvs(part.mesh))
+        uvs.append(part_uvs)
+        if smooth:
+            moved = vertex_normals.transformed(part_normals, part.matrix)
+            normals.append(vertex_normals.repaired(moved, baked, part_faces))
         count += len(baked)
     uv = None if any(u is None for u in uvs) else np.concatenate(uvs)
-    return make_mesh(np.concatenate(vertices), np.concatenate(faces), path.name, uv)
+    normal = np.concatenate(normals) if smooth else None
+    return make_mesh(np.concatenate(vertices), np.concatenate(faces), path.name, uv, normal)
+
+
+def _normals_in_file(path: Path) -> bool:
+    """False when the file certainly has no normals (a glTF whose JSON has no NORMAL)."""
+    document = gltf_features.gltf_json(path)
+    return document is None or gltf_features.has_normals(document)
 
 
 @dataclass
@@ -123,21 +189,26 @@ class FileModel:
     textures: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def load_file_model(path: Path, reference: str, mesh_prefix: str) -> FileModel:
-    """The file's meshes (one per geometry, keyed ``mesh_prefix + geometry``) and materials
-    (keyed ``reference#name``), each node a part; textures are named ``reference#imageN``."""
+def load_file_model(
+    path: Path, reference: str, mesh_prefix: str, shape: fmt.MeshFile | None = None
+) -> FileModel:
+    """The file's meshes (one per geometry, keyed ``mesh_prefix + geometry``, with normals as
+    ``shape`` asks: ``part_arrays``) and materials (keyed ``reference#name``), each node a
+    part; textures are named ``reference#imageN``."""
+    shape = shape or FILE_NORMALS
     loaded = load_trimesh(path)
     parts = file_parts(path, loaded)
     if not parts:
         raise SceneError(f"{path.name}: the file contains no triangle meshes")
     model = FileModel()
     mapper = _MaterialMapper(path, reference, model.textures)
+    in_file = _normals_in_file(path)
     for part in parts:
         mesh_key = f"{mesh_prefix}{part.geometry}"
         if mesh_key not in model.meshes:
-            uvs = mesh_uvs(part.mesh)
             label = f"{path.name}:{part.node}"
-            model.meshes[mesh_key] = make_mesh(part.mesh.vertices, part.mesh.faces, label, uvs)
+            vertices, faces, uvs, normals = part_arrays(part, label, in_file, shape)
+            model.meshes[mesh_key] = make_mesh(vertices, faces, label, uvs, normals)
         material = getattr(part.mesh.visual, "material", None)
         uvs_present = model.meshes[mesh_key].uvs is not None
         material_key = mapper.key(material, uvs_present, model.materials)
@@ -276,22 +347,11 @@ def _absorption(volume: dict) -> tuple[float, float, float]:
 def gltf_materials(path: Path) -> dict[str, dict]:
     """A glTF or GLB file's materials by name (names used once only), as its JSON gives them;
     empty for other files or when the JSON cannot be read (trimesh already read the file)."""
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".gltf":
-            document = json.loads(path.read_text(encoding="utf-8"))
-        elif suffix == ".glb":
-            with path.open("rb") as handle:
-                magic, _, _, length, kind = struct.unpack("<4sIII4s", handle.read(20))
-                if magic != b"glTF" or kind != b"JSON":
-                    return {}
-                document = json.loads(handle.read(length))
-        else:
-            return {}
-        materials = document.get("materials", [])
-        names = [m.get("name") for m in materials if isinstance(m, dict)]
-    except (OSError, ValueError, struct.error, AttributeError):
+    document = gltf_features.gltf_json(path) or {}
+    materials = document.get("materials", [])
+    if not isinstance(materials, list):
         return {}
+    names = [m.get("name") for m in materials if isinstance(m, dict)]
     return {
         m["name"]: m
         for m in materials

@@ -1,0 +1,146 @@
+"""What tilerender ignores or approximates of a glTF 2.0 file: one short warning per feature the
+file uses, read from its JSON (the feature table is in docs/materials.md, "Materials from mesh
+files"). Loading itself does not depend on these; they are for the user (``tilerender info``,
+the API's scene inspection).
+"""
+
+import json
+import struct
+from pathlib import Path
+
+REPEAT = 10497
+"""glTF's sampler wrap mode REPEAT, the only one textures use."""
+NEAREST = 9728
+
+READ_EXTENSIONS = {
+    "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
+    "KHR_materials_transmission",
+    "KHR_materials_volume",
+}
+"""Extensions the material mapping reads (docs/materials.md)."""
+
+GEOMETRY_WARNINGS = {
+    "skins": "skins ignored: skinned meshes render as stored, not posed by their joints",
+    "targets": "morph targets ignored: meshes render in their base shape",
+    "animations": "animations ignored: the file renders at rest (a scene's animation section "
+    "moves objects)",
+    "cameras": "cameras ignored: the scene's camera (or one framing the model) is used",
+    "sparse": "sparse accessors ignored: their substituted values are not applied",
+    "KHR_lights_punctual": "KHR_lights_punctual ignored: add lights in the scene",
+    "KHR_draco_mesh_compression": "KHR_draco_mesh_compression not decoded (no DracoPy): its "
+    "meshes load as zeros",
+    "EXT_meshopt_compression": "EXT_meshopt_compression not decoded: its meshes do not load "
+    "correctly",
+}
+MATERIAL_WARNINGS = {
+    "TANGENT": "TANGENT ignored: there are no normal maps",
+    "TEXCOORD_1": "UV sets after TEXCOORD_0 ignored: every texture uses TEXCOORD_0",
+    "COLOR_0": "vertex colours ignored: surfaces use their material's base colour",
+    "normalTexture": "normalTexture ignored: the surface shades with its vertex normals",
+    "occlusionTexture": "occlusionTexture ignored: the path tracer finds occlusion itself",
+    "metallicFactor": "metallicFactor between 0 and 1 approximated: below 0.5 a plastic, "
+    "else a metal",
+    "metallicRoughnessTexture": "metallicRoughnessTexture approximated: its mean metallic and "
+    "roughness, one value per material",
+    "emissiveTexture": "emissiveTexture approximated: its mean colour, uniform over the material",
+    "alphaMode": "alphaMode MASK/BLEND ignored: surfaces are opaque",
+    "transmission": "KHR_materials_transmission approximated: glass at a "
+    "transmissionFactor of 0.5 or more (no transmissionTexture), else opaque",
+    "KHR_materials_pbrSpecularGlossiness": "KHR_materials_pbrSpecularGlossiness approximated: "
+    "converted to metallic-roughness by trimesh",
+    "KHR_texture_transform": "KHR_texture_transform ignored: textures use their UVs as stored",
+    "wrap": "texture sampler wrap modes ignored: every texture repeats",
+    "filter": "texture sampler NEAREST filter ignored: textures are bilinear",
+}
+
+
+def gltf_json(path: Path) -> dict | None:
+    """The JSON of a .gltf or .glb file, or None for other files or JSON that cannot be read
+    (trimesh reads the file itself; this is for what trimesh does not keep)."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".gltf":
+            document = json.loads(path.read_text(encoding="utf-8"))
+        elif suffix == ".glb":
+            with path.open("rb") as handle:
+                magic, _, _, length, kind = struct.unpack("<4sIII4s", handle.read(20))
+                if magic != b"glTF" or kind != b"JSON":
+                    return None
+                document = json.loads(handle.read(length))
+        else:
+            return None
+    except (OSError, ValueError, struct.error):
+        return None
+    return document if isinstance(document, dict) else None
+
+
+def _dicts(value) -> list[dict]:
+    return [item for item in value if isinstance(item, dict)] if isinstance(value, list) else []
+
+
+def has_normals(document: dict) -> bool:
+    """Whether any primitive of the file has a NORMAL attribute."""
+    return any("NORMAL" in p.get("attributes", {}) for p in _primitives(document))
+
+
+def _primitives(document: dict) -> list[dict]:
+    return [p for m in _dicts(document.get("meshes")) for p in _dicts(m.get("primitives"))]
+
+
+def used_features(document: dict) -> set[str]:
+    """The keys of ``GEOMETRY_WARNINGS`` and ``MATERIAL_WARNINGS`` the document uses, and the
+    names of other extensions it uses."""
+    used = {key for key in ("skins", "animations", "cameras") if _dicts(document.get(key))}
+    used |= {"sparse" for a in _dicts(document.get("accessors")) if "sparse" in a}
+    for primitive in _primitives(document):
+        attributes = primitive.get("attributes", {})
+        if isinstance(attributes, dict):
+            used |= {"TANGENT"} & set(attributes)
+            used |= {"COLOR_0" for name in attributes if name.startswith("COLOR_")}
+            used |= {"TEXCOORD_1" for name in attributes if name.startswith("TEXCOORD_")
+                     and name != "TEXCOORD_0"}  # fmt: skip
+        if primitive.get("targets"):
+            used.add("targets")
+        used |= set(primitive.get("extensions", {}) or {})
+    for material in _dicts(document.get("materials")):
+        used |= {key for key in ("normalTexture", "occlusionTexture", "emissiveTexture")
+                 if key in material}  # fmt: skip
+        pbr = material.get("pbrMetallicRoughness", {}) or {}
+        if "metallicRoughnessTexture" in pbr:
+            used.add("metallicRoughnessTexture")
+        metallic = pbr.get("metallicFactor", 1.0)
+        if isinstance(metallic, int | float) and 0.0 < metallic < 1.0:
+            used.add("metallicFactor")
+        if material.get("alphaMode", "OPAQUE") in ("MASK", "BLEND"):
+            used.add("alphaMode")
+        extensions = material.get("extensions", {}) or {}
+        used |= set(extensions)
+        transmission = extensions.get("KHR_materials_transmission", {}) or {}
+        factor = transmission.get("transmissionFactor", 0.0)
+        if "transmissionTexture" in transmission or factor not in (0, 0.0, 1, 1.0):
+            used.add("transmission")
+        if '"KHR_texture_transform"' in json.dumps(material):
+            used.add("KHR_texture_transform")
+    for sampler in _dicts(document.get("samplers")):
+        if sampler.get("wrapS", REPEAT) != REPEAT or sampler.get("wrapT", REPEAT) != REPEAT:
+            used.add("wrap")
+        if sampler.get("magFilter") == NEAREST:
+            used.add("filter")
+    extensions = document.get("extensionsUsed", [])
+    if isinstance(extensions, list):
+        used |= {name for name in extensions if isinstance(name, str)}
+    return used - READ_EXTENSIONS
+
+
+def feature_warnings(document: dict, materials: bool = True) -> list[str]:
+    """One warning per feature of the file that is ignored or approximated, in the table's
+    order, then other extensions by name; with ``materials`` false (the scene gives the
+    object its own material) only those about geometry and the file's scene."""
+    used = used_features(document)
+    warnings = [text for key, text in GEOMETRY_WARNINGS.items() if key in used]
+    if materials:
+        warnings += [text for key, text in MATERIAL_WARNINGS.items() if key in used]
+        known = set(GEOMETRY_WARNINGS) | set(MATERIAL_WARNINGS)
+        warnings += [f"{name} ignored" for name in sorted(used - known)]
+    return warnings
