@@ -9,7 +9,7 @@ from tests.helpers import SCENES, compile_dict, mean_and_error, render_passes, t
 from tests.tracer.test_furnace import furnace
 from tracer.compiled.scene import compile_scene
 from tracer.integrators import aov
-from tracer.integrators.flags import SHADING_NORMALS
+from tracer.integrators.flags import SHADING_NORMALS, SHADOW_TERMINATOR
 from tracer.render import effect_plan, render_image, render_pixels
 from tracer.scene import format as fmt
 from tracer.scene.loader import scene_from_file_model
@@ -173,3 +173,26 @@ def test_no_light_leaks_through_a_surface_whose_normals_lean_toward_the_light():
     assert render_image(scene, None)[0].max() == 0.0
     below = fmt.override(scene.camera, position=(0.0, -3.0, 2.0))
     assert render_image(scene, below)[0].max() > 0.0
+
+
+def test_the_terminator_falloff_is_its_own_effect():
+    """Planned with shading normals where lights are sampled, not without them nor for the
+    ``normal`` output; switched off, the smooth sphere gets brighter (the falloff only takes
+    light away), the floor does not change by more than noise, and no pixel turns negative."""
+    scene = compile_dict(ball_scene(True, spp=32, subdivisions=1))
+    flags = effect_plan(scene, scene.render).flags
+    assert flags & SHADOW_TERMINATOR
+    normal = fmt.override(scene.render, integrator="normal")
+    assert not effect_plan(scene, normal).flags & SHADOW_TERMINATOR
+    flat = compile_dict(ball_scene(False, spp=2))
+    assert not effect_plan(flat, flat.render).flags & SHADOW_TERMINATOR
+    off = fmt.override(scene.render, effects={"shadow_terminator": False})
+    assert not effect_plan(scene, off).flags & SHADOW_TERMINATOR
+    ids = first_hits(scene)[3].reshape(scene.camera.height, scene.camera.width)
+    with_falloff = render_passes(scene, 4, 32)
+    without = render_passes(scene, 4, 32, effects={"shadow_terminator": False})
+    assert (with_falloff >= 0).all() and (without >= 0).all()
+    ball = ids == 1
+    m_on, e_on = mean_and_error(with_falloff[:, ball][:, :, None, :], axis=(1, 2))
+    m_off, e_off = mean_and_error(without[:, ball][:, :, None, :], axis=(1, 2))
+    assert np.all(m_off - m_on > 4.0 * np.hypot(e_on, e_off)), (m_on, m_off, e_on, e_off)
