@@ -304,10 +304,10 @@ def reference(scenes) -> Run:
 
 
 def test_scenes_use_every_effect(scenes):
-    """The harsh scene runs every effect of the path tracer; outdoor all but textures and
-    shading normals."""
+    """The harsh scene runs every effect of the path tracer; outdoor all but textures, shading
+    normals and the terminator falloff that comes with them."""
     from tracer.compiled.scene import compile_scene
-    from tracer.integrators.flags import ALL, SHADING_NORMALS, TEXTURES
+    from tracer.integrators.flags import ALL, SHADING_NORMALS, SHADOW_TERMINATOR, TEXTURES
     from tracer.render import effect_plan
     from tracer.scene.loader import load_scene
 
@@ -316,7 +316,7 @@ def test_scenes_use_every_effect(scenes):
         scene = compile_scene(load_scene(path))
         plans[name] = effect_plan(scene, scene.render).flags
     assert plans["harsh"] == ALL
-    assert plans["outdoor"] == ALL & ~TEXTURES & ~SHADING_NORMALS
+    assert plans["outdoor"] == ALL & ~(TEXTURES | SHADING_NORMALS | SHADOW_TERMINATOR)
 
 
 def test_reference_is_a_real_image(reference):
