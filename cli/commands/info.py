@@ -21,7 +21,7 @@ def run(args: argparse.Namespace) -> int:
         "materials": list(scene.material_names),
         "textures": {
             name: [int(image.shape[1]), int(image.shape[0])]
-            for name, image in scene.textures.sources
+            for name, _, image in scene.textures.sources
         },
         "instances": scene.stats.instances,
         "nodes": len(scene.state.nodes),

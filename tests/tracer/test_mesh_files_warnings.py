@@ -18,7 +18,9 @@ from tracer.scene.gltf_features import feature_warnings, used_features
 from tracer.scene.loader import load_scene, load_warnings
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "materials.md"
-NORMAL_TEXTURE = "normalTexture ignored: the surface shades with its vertex normals"
+NORMAL_TEXTURE = (
+    "normalTexture approximated: a tangent frame per triangle from its UVs, not MikkTSpace"
+)
 
 
 def textured_box(path: Path, **material) -> Path:
@@ -36,18 +38,22 @@ def textured_box(path: Path, **material) -> Path:
     return path
 
 
-def test_normal_texture_warns_and_changes_nothing_else(tmp_path):
+def test_normal_texture_becomes_a_normal_map_and_warns(tmp_path):
     image = Image.fromarray(np.full((4, 4, 3), 200, np.uint8))
     bumpy = textured_box(tmp_path / "bumpy.glb", normalTexture=image)
     plain = textured_box(tmp_path / "plain.glb")
     assert load_warnings(bumpy) == [f"bumpy.glb: {NORMAL_TEXTURE}"]
     assert load_warnings(plain) == []
     a, b = load_scene(bumpy), load_scene(plain)
-    untextured = {"texture": None}
+    untextured = {"texture": None, "normal_map": None}
     assert a.materials["bumpy.glb#paint"].model_copy(update=untextured) == b.materials[
         "plain.glb#paint"
     ].model_copy(update=untextured)
     assert a.materials["bumpy.glb#paint"].texture is not None
+    normal_map = a.materials["bumpy.glb#paint"].normal_map
+    assert normal_map is not None and normal_map.strength == 1.0
+    assert b.materials["plain.glb#paint"].normal_map is None
+    np.testing.assert_array_equal(a.textures[normal_map.file], np.full((4, 4, 3), 200))
     (mesh_a,), (mesh_b,) = (
         [m for key, m in state.meshes.items() if key.endswith(":box")] for state in (a, b)
     )

@@ -71,6 +71,10 @@ class SceneArrays(NamedTuple):
     """float64 (Q, ``bsdf.PARAM_COLUMNS``): BSDF parameters (``tracer.shading.materials``)."""
     mat_texture: np.ndarray
     """int32 (Q,): the material's base-colour texture (a row of ``tex_info``), or -1."""
+    mat_normal_map: np.ndarray
+    """int32 (Q,): the material's normal map (a row of ``tex_info``, linear texels), or -1."""
+    mat_normal_strength: np.ndarray
+    """float64 (Q,): the strength of the material's normal map."""
     tri_uv: tuple[np.ndarray, np.ndarray]
     """float32 (M, 6) per pool: each row's vertex UVs (zeros for a mesh without UVs); (0, 6)
     when no mesh of the pool has UVs."""
@@ -157,6 +161,8 @@ def borrow_scene(s):
         borrowed(s.mat_kind),
         borrowed(s.mat_param),
         borrowed(s.mat_texture),
+        borrowed(s.mat_normal_map),
+        borrowed(s.mat_normal_strength),
         _pair(s.tri_uv),
         _pair(s.tri_normal),
         borrowed(s.tex_pixels),

@@ -565,12 +565,9 @@ def compile_scene(
         mat_two_sided=materials.two_sided,
         mat_kind=materials.kind,
         mat_param=materials.param,
-        mat_texture=textures.material,
         tri_uv=(pools[0].tri_uv, pools[1].tri_uv),
         tri_normal=(pools[0].tri_normal, pools[1].tri_normal),
-        tex_pixels=textures.pixels,
-        tex_info=textures.info,
-        tex_scale=textures.scale,
+        **textures.fields(),
         **scene_fields(light),
     )
     stats = SceneStats(

@@ -25,8 +25,9 @@ adds the scene's origin where the camera rays hit.
 
 import numpy as np
 
-from tracer.geometry.scene_intersect import material_of, shading_normal, surface
+from tracer.geometry.scene_intersect import material_of, surface
 from tracer.integrators import flags
+from tracer.integrators.normals import surface_normal
 from tracer.kernel.jit import jit_inline
 from tracer.maths.vecmath import dot
 from tracer.shading.bsdf import DIFFUSE, bsdf_albedo, bsdf_is_delta
@@ -66,8 +67,8 @@ def vertex_aov(s, d, k, j, b0, b1, b2, materials, plan):
     mat = material_of(s, k, j)
     _, _, _, p, ng = surface(s, k, j, b0, b1, b2)
     front = dot(ng, d) < 0.0  # the geometric normal decides the side; ns lies on ng's
-    if plan & flags.SHADING_NORMALS:
-        _, ng = shading_normal(s, k, j, b0, b1, b2, ng)
+    if plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
+        _, ng = surface_normal(s, mat, k, j, b0, b1, b2, ng, plan)
     n = ng if front else (-ng[0], -ng[1], -ng[2])
     albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
               np.float64(s.mat_albedo[mat, 2]))  # fmt: skip

@@ -18,6 +18,7 @@ from tracer.integrators.flags import (
     ALL,
     EFFECTS,
     LIGHT_SAMPLES,
+    NORMAL_MAPS,
     SHADING_NORMALS,
     SHADOW_TERMINATOR,
     SHADOWS,
@@ -64,8 +65,9 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
     - textures are needed iff a visible object's material has a texture and the integrator
       reads base colours (all but ``ao``, ``normal`` and ``depth``);
     - shading normals are needed iff a mesh in the scene has vertex normals and the integrator
-      shades with normals (all but ``albedo`` and ``depth``); the shadow terminator's falloff
-      iff shading normals are and the integrator samples lights.
+      shades with normals (all but ``albedo`` and ``depth``); normal maps iff a used material
+      has one and the integrator shades with normals; the shadow terminator's falloff iff
+      either is needed and the integrator samples lights.
     """
     table = scene.lights
     weight = table.weight
@@ -182,11 +184,21 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
         if not smooth
         else f"the {settings.integrator} output reads no normal",
     )
+    mapped = any(scene.textures.normal_map[m] >= 0 for m in used)
+    decide(
+        "normal_maps",
+        mapped and integrator.reads_normals,
+        "materials with normal maps",
+        "no material has a normal map"
+        if not mapped
+        else f"the {settings.integrator} output reads no normal",
+    )
+    tilted = bool(flags & (SHADING_NORMALS | NORMAL_MAPS))
     decide(
         "shadow_terminator",
-        bool(flags & SHADING_NORMALS) and integrator.samples_lights,
+        tilted and integrator.samples_lights,
         "shading normals on surfaces that reflect light",
-        "no shading normals" if not flags & SHADING_NORMALS else "no reflected light",
+        "no shading normals" if not tilted else "no reflected light",
     )
     return EffectPlan(flags, reasons)
 
@@ -219,6 +231,6 @@ def effect_plan(scene, settings: fmt.RenderSettings) -> EffectPlan:
             reasons[name] = "switched off in render.effects"
     if not flags & LIGHT_SAMPLES:
         flags &= ~SHADOWS
-    if not flags & SHADING_NORMALS:
+    if not flags & (SHADING_NORMALS | NORMAL_MAPS):
         flags &= ~SHADOW_TERMINATOR
     return EffectPlan(flags, reasons)

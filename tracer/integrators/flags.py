@@ -37,6 +37,9 @@ TEXTURES = 1 << 12
 SHADING_NORMALS = 1 << 16
 """Interpolated vertex normals where rays hit meshes that have them (off: every surface shades
 with its geometric normal, faceted)."""
+NORMAL_MAPS = 1 << 18
+"""Tangent-space normal maps where rays hit materials that have them
+(``tracer.shading.normal_maps``)."""
 SHADOW_TERMINATOR = 1 << 17
 """Chiang et al.'s falloff of light reflected where shading and geometric normals disagree
 (``tracer.shading.shading_normals.terminator``); off: shading normals without it, as Mitsuba and
@@ -73,6 +76,7 @@ EFFECTS = {
     "light_samples": LIGHT_SAMPLES,
     "textures": TEXTURES,
     "shading_normals": SHADING_NORMALS,
+    "normal_maps": NORMAL_MAPS,
     "shadow_terminator": SHADOW_TERMINATOR,
 }
 ALL = sum(EFFECTS.values())

@@ -17,7 +17,13 @@ from tracer import config
 from tracer.compiled.arrays import SceneArrays
 from tracer.compiled.scene import CompiledScene
 from tracer.integrators import path, stream, surface, vertex
-from tracer.integrators.flags import INDIRECT, SHADING_NORMALS, TEXTURES, light_kinds
+from tracer.integrators.flags import (
+    INDIRECT,
+    NORMAL_MAPS,
+    SHADING_NORMALS,
+    TEXTURES,
+    light_kinds,
+)
 from tracer.integrators.pixels import PixelRun
 from tracer.maths import portable
 from tracer.shading.lights import light_arrays, scene_fields
@@ -114,7 +120,7 @@ def _surface(name: str, output: int) -> Integrator:
             settings.ao_samples,
             settings.ao_distance * scene_diagonal(scene),
             bool(run.flags & TEXTURES),
-            bool(run.flags & SHADING_NORMALS),
+            run.flags & (SHADING_NORMALS | NORMAL_MAPS),
         )
 
     def kernel(flags: int) -> Callable[..., None]:

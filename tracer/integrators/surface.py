@@ -22,10 +22,10 @@ from tracer.geometry.scene_intersect import (
     offset_distance,
     scene_closest,
     scene_occluded,
-    shading_normal,
     spawn,
     surface,
 )
+from tracer.integrators.normals import surface_normal
 from tracer.integrators.path import PIXEL_BLOCK
 from tracer.kernel.borrow import borrowed
 from tracer.kernel.jit import jit
@@ -62,7 +62,7 @@ def render_surface(
     ao_samples,
     ao_length,
     textures,
-    smooth,
+    normal_plan,
     first,
     stride,
     stack_node,
@@ -76,8 +76,9 @@ def render_surface(
     ``first, first + stride, ...`` of the pixel run [p0, p1); arguments and outputs as the path
     kernel's (``tracer.integrators.path.path_kernel``), plus ``ao_samples`` occlusion rays per
     camera sample of length ``ao_length`` (render-space units), and ``textures``: whether the
-    albedo output applies base-colour textures (the effect plan's ``TEXTURES``), and ``smooth``:
-    whether the normal and occlusion use shading normals (``SHADING_NORMALS``). ``out_rays``
+    albedo output applies base-colour textures (the effect plan's ``TEXTURES``), and
+    ``normal_plan``: the plan's ``SHADING_NORMALS`` and ``NORMAL_MAPS`` bits, which shading
+    normal the normal output and occlusion use. ``out_rays``
     gets the rays traced per pixel: each camera ray, and each occlusion ray (``AO`` only).
     ``out_aov`` is untouched: AOVs come from the path integrators' paths."""
     s = borrow_scene(scene)
@@ -108,8 +109,9 @@ def render_surface(
                 p_o, err_o, n_o, _, ng = surface(s, k, j, b0, b1, b2)
                 front = dot(ng, d) < 0.0
                 n = ng if front else (-ng[0], -ng[1], -ng[2])
-                if smooth:
-                    _, ns = shading_normal(s, k, j, b0, b1, b2, ng)
+                smooth = False
+                if normal_plan:
+                    smooth, ns = surface_normal(s, mat, k, j, b0, b1, b2, ng, normal_plan)
                     n = ns if front else (-ns[0], -ns[1], -ns[2])
                 if output == DEPTH:
                     value = (t, t, t)

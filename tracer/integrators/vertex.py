@@ -19,14 +19,9 @@ import math
 
 import numpy as np
 
-from tracer.geometry.scene_intersect import (
-    material_of,
-    offset_distance,
-    shading_normal,
-    spawn,
-    surface,
-)
+from tracer.geometry.scene_intersect import material_of, offset_distance, spawn, surface
 from tracer.integrators import flags
+from tracer.integrators.normals import surface_normal
 from tracer.kernel.jit import jit_inline
 from tracer.maths.rng import uniform, uniform2
 from tracer.maths.vecmath import dot, max_component, sub
@@ -173,8 +168,8 @@ def vertex_shader(materials: bool, lights: bool):
         # ``ns``; the geometric ``n`` keeps deciding sides.
         smooth = False
         ns = n
-        if plan & flags.SHADING_NORMALS:
-            smooth, ns = shading_normal(s, k, j, b0, b1, b2, ng)
+        if plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
+            smooth, ns = surface_normal(s, mat, k, j, b0, b1, b2, ng, plan)
             ns = ns if front else (-ns[0], -ns[1], -ns[2])
             if smooth:
                 ns = bent_normal(ns, n, wo)

@@ -17,9 +17,12 @@ from tracer.scene import format as fmt
 
 def guides_are_noisy(materials: Iterable[fmt.Material], camera: fmt.Camera) -> bool:
     """Whether the guides of ``camera``'s view of a scene with ``materials`` carry noise beyond
-    the pixel filter's: the camera has a lens aperture, or a material has a texture."""
+    the pixel filter's: the camera has a lens aperture, or a material has a texture or a normal
+    map."""
     return camera.aperture_radius > 0.0 or any(
-        getattr(material, "texture", None) is not None for material in materials
+        getattr(material, "texture", None) is not None
+        or getattr(material, "normal_map", None) is not None
+        for material in materials
     )
 
 

@@ -65,25 +65,28 @@ def check_state(state: SceneState) -> None:
 
 
 def check_textures(state: SceneState) -> None:
-    """Raise SceneError unless every texture a material names is one of the state's images and
-    every mesh node whose material has a texture has UVs."""
-    textured = set()
+    """Raise SceneError unless every texture and normal map a material names is one of the
+    state's images and every mesh node whose material has either has UVs."""
+    textured = {}
     for name, material in state.materials.items():
-        texture = getattr(material, "texture", None)
-        if texture is None:
-            continue
-        if texture.file not in state.textures:
-            raise SceneError(
-                f"material {name!r}: its texture {texture.file!r} is not one of the scene's images"
-            )
-        textured.add(name)
+        for what in ("texture", "normal_map"):
+            texture = getattr(material, what, None)
+            if texture is None:
+                continue
+            label = "texture" if what == "texture" else "normal map"
+            if texture.file not in state.textures:
+                raise SceneError(
+                    f"material {name!r}: its {label} {texture.file!r} is not one of the "
+                    "scene's images"
+                )
+            textured.setdefault(name, label)
     if not textured:
         return
     for node in state.nodes.values():
         if node.material in textured and state.meshes[node.mesh].uvs is None:
             raise SceneError(
-                f"{node.name or f'node {node.id}'}: material {node.material!r} has a texture, "
-                "but the mesh has no UVs (texture coordinates)"
+                f"{node.name or f'node {node.id}'}: material {node.material!r} has a "
+                f"{textured[node.material]}, but the mesh has no UVs (texture coordinates)"
             )
 
 

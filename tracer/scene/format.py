@@ -64,6 +64,7 @@ from tracer.scene.format_materials import (
     Ior,
     Material,
     MirrorMaterial,
+    NormalMap,
     PlasticMaterial,
     PositiveVec3,
     Roughness,
@@ -99,6 +100,7 @@ __all__ = [
     "MirrorMaterial",
     "Name",
     "NonNegative",
+    "NormalMap",
     "ObjectKeyframe",
     "ObjectTrack",
     "Plane",
@@ -272,6 +274,7 @@ EffectName = Literal[
     "absorption",
     "textures",
     "shading_normals",
+    "normal_maps",
     "shadow_terminator",
 ]
 """Effects a user may switch off (docs/effects.md)."""

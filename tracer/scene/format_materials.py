@@ -35,6 +35,17 @@ class Texture(Strict):
     )
 
 
+class NormalMap(Texture):
+    """A tangent-space normal map (glTF's ``normalTexture``): each texel's RGB, read linearly
+    (not sRGB), is a unit vector ``2 c - 1`` along the surface's tangent (``+u``), bitangent
+    (``+v``, toward the top of the image) and normal; ``strength`` scales its tangential part
+    (glTF's ``scale``). docs/materials.md, *Normal maps*."""
+
+    strength: NonNegative = Field(
+        default=1.0, description="Scale of the map's tangential components (0: no effect)"
+    )
+
+
 class _Opaque(Strict):
     """What every opaque material has: emission (an area light), sidedness and an optional
     base-colour texture."""
@@ -51,6 +62,11 @@ class _Opaque(Strict):
         default=None,
         description="An image multiplying the base colour (reflectance) through the mesh's "
         "UVs; the mesh must have UVs",
+    )
+    normal_map: NormalMap | None = Field(
+        default=None,
+        description="A tangent-space normal map through the mesh's UVs (the mesh must have "
+        "UVs); it tilts the shading normal",
     )
 
 

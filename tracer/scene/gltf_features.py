@@ -34,10 +34,11 @@ GEOMETRY_WARNINGS = {
     "correctly",
 }
 MATERIAL_WARNINGS = {
-    "TANGENT": "TANGENT ignored: there are no normal maps",
+    "TANGENT": "TANGENT ignored: normal maps use each triangle's own tangent frame from its UVs",
     "TEXCOORD_1": "UV sets after TEXCOORD_0 ignored: every texture uses TEXCOORD_0",
     "COLOR_0": "vertex colours ignored: surfaces use their material's base colour",
-    "normalTexture": "normalTexture ignored: the surface shades with its vertex normals",
+    "normalTexture": "normalTexture approximated: a tangent frame per triangle from its UVs, "
+    "not MikkTSpace",
     "occlusionTexture": "occlusionTexture ignored: the path tracer finds occlusion itself",
     "metallicFactor": "metallicFactor between 0 and 1 approximated: below 0.5 a plastic, "
     "else a metal",

@@ -298,10 +298,12 @@ def material_textures(materials: dict[str, fmt.Material], scene_dir: Path) -> di
     written), as ``tracer.shading.textures`` pixels."""
     textures: dict = {}
     for name, material in materials.items():
-        texture = material_texture(material)
-        if texture is not None and texture.file not in textures:
-            path = resolve_reference(scene_dir, texture.file)
-            textures[texture.file] = read_texture(path, f"materials.{name}.texture: {texture.file}")
+        for what, texture in (("texture", material_texture(material)),
+                              ("normal_map", getattr(material, "normal_map", None))):  # fmt: skip
+            if texture is not None and texture.file not in textures:
+                path = resolve_reference(scene_dir, texture.file)
+                label = f"materials.{name}.{what}: {texture.file}"
+                textures[texture.file] = read_texture(path, label)
     return textures
 
 

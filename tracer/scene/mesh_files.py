@@ -241,8 +241,10 @@ class _MaterialMapper:
         name = getattr(material, "name", None) or ("default" if material is None else "material")
         key = f"{self.reference}#{name}"
         converted = self.convert(material, key)
-        if getattr(converted, "texture", None) is not None and not uvs_present:
+        if not uvs_present and getattr(converted, "texture", None) is not None:
             converted = converted.model_copy(update={"texture": None})
+        if not uvs_present and getattr(converted, "normal_map", None) is not None:
+            converted = converted.model_copy(update={"normal_map": None})
             key += " (no UVs)"
         base, n = key, 1
         while key in materials:
@@ -259,6 +261,15 @@ class _MaterialMapper:
             self.textures[name] = texture_from_image(image, f"{self.path.name}: {name}")
             self.image_keys[id(image)] = name
         return fmt.Texture(file=self.image_keys[id(image)], wrap=wrap)
+
+    def normal_map(self, image, spec: dict) -> fmt.NormalMap | None:
+        """A glTF ``normalTexture`` as a normal map (its ``scale`` the strength), or None."""
+        if image is None:
+            return None
+        texture = self.texture(image)
+        info = spec.get("normalTexture", {})
+        strength = _factor(info.get("scale") if isinstance(info, dict) else None, 1.0)
+        return fmt.NormalMap(file=texture.file, wrap=texture.wrap, strength=max(strength, 0.0))
 
     def convert(self, material, label: str) -> fmt.Material:
         if isinstance(material, trimesh.visual.material.PBRMaterial):
@@ -313,6 +324,7 @@ class _MaterialMapper:
             "texture": None
             if material.baseColorTexture is None
             else self.texture(material.baseColorTexture),
+            "normal_map": self.normal_map(getattr(material, "normalTexture", None), spec),
         }
         if metallic >= METALLIC_THRESHOLD:
             return fmt.ConductorMaterial(type="conductor", **common)

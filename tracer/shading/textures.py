@@ -88,20 +88,40 @@ def material_texture(material: fmt.Material) -> fmt.Texture | None:
     return getattr(material, "texture", None)
 
 
+def linear_texels(values: np.ndarray) -> np.ndarray:
+    """8-bit ``values`` read as linear in [0, 1] (float32; normal maps are not sRGB)."""
+    return (np.arange(256, dtype=np.float32) / np.float32(255.0))[np.asarray(values, np.uint8)]
+
+
 @dataclass(frozen=True, eq=False)
 class TextureTable:
     """Textures packed for kernels; one entry per distinct (file, wrap, scale) materials use.
 
     ``pixels`` float32 (N, 3) linear RGB, each image's rows top to bottom; ``info`` int64
     (T, 4): first texel, width, height and wrap mode (``REPEAT``, ``CLAMP``); ``scale`` float64
-    (T, 2): the UV scale; ``material`` int32 (Q,): each material's entry, or -1. ``sources``
-    is what it was packed from (compared by identity for reuse)."""
+    (T, 2): the UV scale; ``material`` int32 (Q,): each material's entry, or -1;
+    ``normal_map`` int32 (Q,) its normal map's entry (texels read linearly), or -1, and
+    ``normal_strength`` float64 (Q,) the map's strength. ``sources`` is what it was packed from
+    (compared by identity for reuse)."""
 
     sources: tuple
     pixels: np.ndarray
     info: np.ndarray
     scale: np.ndarray
     material: np.ndarray
+    normal_map: np.ndarray
+    normal_strength: np.ndarray
+
+    def fields(self) -> dict[str, np.ndarray]:
+        """The ``SceneArrays`` fields made from the table."""
+        return {
+            "mat_texture": self.material,
+            "mat_normal_map": self.normal_map,
+            "mat_normal_strength": self.normal_strength,
+            "tex_pixels": self.pixels,
+            "tex_info": self.info,
+            "tex_scale": self.scale,
+        }
 
 
 def texture_table(
@@ -111,38 +131,45 @@ def texture_table(
     pixels of ``previous`` when it was packed from the very same images."""
     entries: dict[tuple, int] = {}
     material = np.full(len(materials), -1, dtype=np.int32)
+    normal_map = np.full(len(materials), -1, dtype=np.int32)
+    normal_strength = np.zeros(len(materials), dtype=np.float64)
     for i, m in enumerate(materials):
-        texture = material_texture(m)
-        if texture is not None:
-            key = (texture.file, texture.wrap, tuple(texture.scale))
-            material[i] = entries.setdefault(key, len(entries))
-    files = list(dict.fromkeys(file for file, _, _ in entries))
-    missing = [file for file in files if file not in textures]
+        pairs = ((material, material_texture(m), False),
+                 (normal_map, getattr(m, "normal_map", None), True))  # fmt: skip
+        for column, texture, linear in pairs:
+            if texture is not None:
+                key = (texture.file, linear, texture.wrap, tuple(texture.scale))
+                column[i] = entries.setdefault(key, len(entries))
+        if normal_map[i] >= 0:
+            normal_strength[i] = m.normal_map.strength
+    images = list(dict.fromkeys((file, linear) for file, linear, _, _ in entries))
+    missing = [file for file, _ in images if file not in textures]
     if missing:
         raise SceneError(f"texture {missing[0]!r} is not one of the scene's images")
-    sources = tuple((file, textures[file]) for file in files)
+    sources = tuple((file, linear, textures[file]) for file, linear in images)
     info = np.zeros((len(entries), 4), dtype=np.int64)
     scale = np.zeros((len(entries), 2), dtype=np.float64)
     if previous is not None and _same_sources(previous.sources, sources):
         pixels = previous.pixels
     else:
-        parts = [srgb_to_linear(image).reshape(-1, 3) for _, image in sources]
+        parts = [(linear_texels if linear else srgb_to_linear)(image).reshape(-1, 3)
+                 for _, linear, image in sources]  # fmt: skip
         pixels = np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
     first = {}
     offset = 0
-    for file, image in sources:
-        first[file] = offset
+    for file, linear, image in sources:
+        first[file, linear] = offset
         offset += image.shape[0] * image.shape[1]
-    for (file, wrap, uv_scale), row in entries.items():
+    for (file, linear, wrap, uv_scale), row in entries.items():
         height, width = textures[file].shape[:2]
-        info[row] = (first[file], width, height, WRAP_MODES[wrap])
+        info[row] = (first[file, linear], width, height, WRAP_MODES[wrap])
         scale[row] = uv_scale
-    return TextureTable(sources, pixels, info, scale, material)
+    return TextureTable(sources, pixels, info, scale, material, normal_map, normal_strength)
 
 
 def _same_sources(a: tuple, b: tuple) -> bool:
     return len(a) == len(b) and all(
-        x[0] == y[0] and x[1] is y[1] for x, y in zip(a, b, strict=True)
+        x[0] == y[0] and x[1] == y[1] and x[2] is y[2] for x, y in zip(a, b, strict=True)
     )
 
 
