@@ -13,7 +13,7 @@ from tracer.integrators.flags import SHADING_NORMALS, SHADOW_TERMINATOR
 from tracer.render import effect_plan, render_image, render_pixels
 from tracer.scene import format as fmt
 from tracer.scene.loader import scene_from_file_model
-from tracer.scene.ops import Commit, ReplaceMesh, apply_commit
+from tracer.scene.ops import Commit, ReplaceMesh, UpdateVertices, apply_commit
 
 CENTRE = (0.0, 0.7, 0.0)
 
@@ -196,3 +196,24 @@ def test_the_terminator_falloff_is_its_own_effect():
     m_on, e_on = mean_and_error(with_falloff[:, ball][:, :, None, :], axis=(1, 2))
     m_off, e_off = mean_and_error(without[:, ball][:, :, None, :], axis=(1, 2))
     assert np.all(m_off - m_on > 4.0 * np.hypot(e_on, e_off)), (m_on, m_off, e_on, e_off)
+
+
+def test_a_deformed_smooth_mesh_refits_with_normals_that_follow_it():
+    """update_vertices on a deformable smooth sphere: the refitted scene (compiled from the
+    previous one) has the normals of a scene compiled from scratch, bit for bit, and they are
+    the stretched sphere's smooth normals, not the old ones."""
+    data = ball_scene(True, kind="deformable", subdivisions=2)
+    state = scene_from_file_model(fmt.SceneFile.model_validate(data), SCENES)
+    before = compile_scene(state)
+    key = state.nodes[1].mesh
+    stretched = state.meshes[key].vertices * [1.3, 0.8, 1.0]
+    op = UpdateVertices(mesh=key, vertices=stretched)
+    moved = apply_commit(state, Commit(state.version + 1, (op,)))
+    refitted = compile_scene(moved, before)
+    fresh = compile_scene(moved)
+    a, b = first_hits(refitted), first_hits(fresh)
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[2], b[2])
+    normal, position, hit, ids = a
+    ball = hit & (ids == 1)
+    exact = ellipsoid_normal(position[ball], (1.3, 0.8, 1.0))
+    assert angle_deg(normal[ball], exact).max() < 3.0
