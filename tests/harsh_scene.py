@@ -1,7 +1,8 @@
 """A scene that uses every effect and makes last-bit differences of matrix products show: odd
 rotations, non-uniform and mirroring scales, a shearing matrix, static, rigid and deformable
-nodes, a parent chain, a texture, smooth spheres (shading normals, rigid and deformable), an
-environment map, spot, point and sun lights, a thin lens and a camera looking along no axis."""
+nodes, a parent chain, a texture and a normal map, smooth spheres (shading normals, rigid and
+deformable), an environment map, spot, point and sun lights, a thin lens and a camera looking
+along no axis."""
 
 from pathlib import Path
 
@@ -54,7 +55,11 @@ def harsh_scene(directory: Path) -> Path:
             },
         ],
         "materials": {
-            "checker": {"reflectance": [0.9, 0.85, 0.8], "texture": {"file": "checker.png"}},
+            "checker": {
+                "reflectance": [0.9, 0.85, 0.8],
+                "texture": {"file": "checker.png"},
+                "normal_map": {"file": "checker.png", "strength": 0.3, "scale": [2, 2]},
+            },
             "copper": {
                 "type": "conductor",
                 "eta": [0.27, 0.68, 1.22],

@@ -305,9 +305,16 @@ def reference(scenes) -> Run:
 
 def test_scenes_use_every_effect(scenes):
     """The harsh scene runs every effect of the path tracer; outdoor all but textures, shading
-    normals and the terminator falloff that comes with them."""
+    normals, normal maps and the terminator falloff and bending that come with them."""
     from tracer.compiled.scene import compile_scene
-    from tracer.integrators.flags import ALL, SHADING_NORMALS, SHADOW_TERMINATOR, TEXTURES
+    from tracer.integrators.flags import (
+        ALL,
+        NORMAL_BENDING,
+        NORMAL_MAPS,
+        SHADING_NORMALS,
+        SHADOW_TERMINATOR,
+        TEXTURES,
+    )
     from tracer.render import effect_plan
     from tracer.scene.loader import load_scene
 
@@ -316,7 +323,8 @@ def test_scenes_use_every_effect(scenes):
         scene = compile_scene(load_scene(path))
         plans[name] = effect_plan(scene, scene.render).flags
     assert plans["harsh"] == ALL
-    assert plans["outdoor"] == ALL & ~(TEXTURES | SHADING_NORMALS | SHADOW_TERMINATOR)
+    shading = SHADING_NORMALS | NORMAL_MAPS | SHADOW_TERMINATOR | NORMAL_BENDING
+    assert plans["outdoor"] == ALL & ~(TEXTURES | shading)
 
 
 def test_reference_is_a_real_image(reference):

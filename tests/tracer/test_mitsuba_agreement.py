@@ -82,7 +82,7 @@ AGREEING = {
     "cornell-box": Case(),
     "cornell-spheres": Case(factor=4, spp=256, pixels_from=SLOW),
     "veach-mis": Case(allowed=("rough conductor",)),
-    "studio": Case(allowed=("shadow terminator",)),
+    "studio": Case(allowed=("shadow terminator", "normal bending")),
     "nefertiti": Case(),
     "many-lights": Case(allowed=("rough conductor", "rough plastic")),
     "environment": Case(allowed=("rough plastic",), rounding=ENVIRONMENT_PROXY),

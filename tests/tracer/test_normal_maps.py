@@ -96,13 +96,13 @@ def test_effect_plan_and_switching_normal_maps_off(tmp_path):
                                atol=1e-12)  # fmt: skip
 
 
-@pytest.mark.parametrize("tilt, floor", [((0.3, 0.1, 0.95), 0.9), ((0.9, 0.2, 0.4), 0.75)],
+@pytest.mark.parametrize("tilt, floor", [((0.3, 0.1, 0.95), 0.9), ((0.9, 0.2, 0.4), 0.65)],
                          ids=["18-degrees", "66-degrees"])  # fmt: skip
 def test_a_normal_mapped_floor_in_the_white_furnace(tmp_path, tilt, floor):
     """A white floor whose map tilts every normal by the same angle, under a sky of 1: finite,
     non-negative, never above 1 (four standard errors). It loses light: reflections the tilted
     normal sends below the floor end, and the terminator falloff fades grazing light (measured:
-    0.920 at 18 degrees, 0.789 at 66; without the falloff 0.978 and 0.879)."""
+    0.920 at 18 degrees, 0.686 at 66; without the falloff 0.978 and 0.751)."""
     scene = map_scene(tmp_path, texel=texel_of(tilt))
     normal_map = scene.state.materials["grey"].normal_map
     white = fmt.DiffuseMaterial(reflectance=(1.0, 1.0, 1.0), normal_map=normal_map)

@@ -59,8 +59,8 @@ class MitsubaExport:
 
 
 KNOWN_FIELDS = {
-    fmt.DiffuseMaterial: {"type", "reflectance", "emission", "two_sided", "texture"},
-    fmt.MirrorMaterial: {"type", "reflectance", "emission", "two_sided", "texture"},
+    fmt.DiffuseMaterial: {"type", "reflectance", "emission", "two_sided", "texture", "normal_map"},
+    fmt.MirrorMaterial: {"type", "reflectance", "emission", "two_sided", "texture", "normal_map"},
     fmt.DielectricMaterial: {"type", "ior", "absorption"},
     fmt.ConductorMaterial: {
         "type",
@@ -71,6 +71,7 @@ KNOWN_FIELDS = {
         "emission",
         "two_sided",
         "texture",
+        "normal_map",
     },
     fmt.PlasticMaterial: {
         "type",
@@ -80,8 +81,10 @@ KNOWN_FIELDS = {
         "emission",
         "two_sided",
         "texture",
+        "normal_map",
     },
     fmt.Texture: {"file", "wrap", "scale"},
+    fmt.NormalMap: {"file", "wrap", "scale", "strength"},
     fmt.ConstantSky: {"type", "radiance"},
     fmt.GradientSky: {"type", "zenith", "horizon", "ground"},
     fmt.EnvironmentSky: {"type", "file", "scale", "rotation"},
@@ -227,8 +230,9 @@ class _Writer(MaterialsWriter, EmittersWriter):
 
     def _integrator(self, root: ET.Element) -> None:
         render = self.state.render
-        # Mitsuba shades with vertex normals without the terminator's falloff: off is its twin.
-        if off := sorted(set(render.effects) - {"shadow_terminator"}):
+        # Mitsuba shades with vertex normals and normal maps without the terminator's falloff
+        # and without bending them: both off is its twin.
+        if off := sorted(set(render.effects) - {"shadow_terminator", "normal_bending"}):
             raise UnsupportedFeature(
                 f"effects switched off ({', '.join(off)})", "Mitsuba renders them all"
             )
@@ -306,9 +310,16 @@ class _Writer(MaterialsWriter, EmittersWriter):
         before the lookup; Mitsuba's ``v`` runs from the top row down (its PLY loader keeps
         the file's values). So the PLY holds ``(s_u u, 1 - s_v v)``, from the float32 UVs the
         kernels interpolate."""
-        texture = getattr(self.state.materials[mesh.material], "texture", None)
-        if texture is None:
+        material = self.state.materials[mesh.material]
+        maps = [t for t in (getattr(material, "texture", None),
+                            getattr(material, "normal_map", None)) if t is not None]  # fmt: skip
+        if not maps:
             return None
+        texture = maps[0]
+        if any(tuple(t.scale) != tuple(texture.scale) for t in maps):
+            raise UnsupportedFeature(
+                f"material {mesh.material!r}", "a texture and a normal map of different scales"
+            )
         uvs = self.state.meshes[self.state.nodes[mesh.node].mesh].uvs
         if uvs is None:
             raise UnsupportedFeature(f"mesh {mesh.name!r}", "a texture on a mesh without UVs")
@@ -330,12 +341,21 @@ class _Writer(MaterialsWriter, EmittersWriter):
                 f"wound the other way, {EMITTER_OFFSET:g} scene diagonals behind",
             )
         normals = self._world_normals(mesh)
-        if normals is not None and "shadow_terminator" not in self.state.render.effects:
+        material = self.state.materials[mesh.material]
+        tilted = normals is not None or getattr(material, "normal_map", None) is not None
+        if tilted and "shadow_terminator" not in self.state.render.effects:
             self.note(
                 "shadow terminator",
                 "model",
                 "Mitsuba has no terminator falloff (Chiang et al. 2019): with it, light on "
                 "coarse smooth meshes is darker here near where it grazes the facets",
+            )
+        if tilted and "normal_bending" not in self.state.render.effects:
+            self.note(
+                "normal bending",
+                "model",
+                "Mitsuba leaves points black where the viewer is below the shading normal; "
+                "here the normal is turned toward the viewer",
             )
         for part, (name, vertices, faces) in enumerate(copies):
             shape = child(root, "shape", type="ply")

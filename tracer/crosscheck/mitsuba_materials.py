@@ -39,6 +39,8 @@ class MaterialsWriter:
             ids[name] = f"material-{i}"
             material = self.state.materials[name]
             bsdf = self._bsdf(name, material)
+            if getattr(material, "normal_map", None) is not None:
+                bsdf = self._normal_mapped(bsdf, material.normal_map)
             if getattr(material, "two_sided", False):
                 wrapper = ET.Element("bsdf", type="twosided")
                 wrapper.append(bsdf)
@@ -70,6 +72,28 @@ class MaterialsWriter:
         child(element, "boolean", name="raw", value="true")
         child(element, "string", name="filter_type", value="bilinear")
         child(element, "string", name="wrap_mode", value=texture.wrap)
+
+    def _normal_mapped(self, bsdf: ET.Element, normal_map: fmt.NormalMap) -> ET.Element:
+        """``bsdf`` under Mitsuba's ``normalmap``: the map's linear texels with its strength
+        baked in (Mitsuba normalises ``2 c - 1`` as we do, and has no strength), as a raw
+        float bitmap. Mitsuba's frame is ours: ``dp/du`` made orthogonal to the normal, and
+        their cross product."""
+        texels = self.state.textures[normal_map.file].astype(np.float64) / 255.0
+        vector = (2.0 * texels - 1.0) * [normal_map.strength, normal_map.strength, 1.0]
+        encoded = ((vector + 1.0) / 2.0).astype(np.float32)
+        digest = hashlib.sha256(np.ascontiguousarray(encoded).tobytes())
+        digest.update(repr(encoded.shape).encode())
+        relative = f"textures/normals-{digest.hexdigest()[:16]}.exr"
+        if not (self.out / relative).exists():
+            write_image(self.out / relative, encoded)
+        wrapper = ET.Element("bsdf", type="normalmap")
+        element = child(wrapper, "texture", type="bitmap", name="normalmap")
+        child(element, "string", name="filename", value=relative)
+        child(element, "boolean", name="raw", value="true")
+        child(element, "string", name="filter_type", value="bilinear")
+        child(element, "string", name="wrap_mode", value=normal_map.wrap)
+        wrapper.append(bsdf)
+        return wrapper
 
     def _bsdf(self, name: str, m: fmt.Material) -> ET.Element:
         if isinstance(m, fmt.DiffuseMaterial):

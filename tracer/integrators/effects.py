@@ -18,6 +18,7 @@ from tracer.integrators.flags import (
     ALL,
     EFFECTS,
     LIGHT_SAMPLES,
+    NORMAL_BENDING,
     NORMAL_MAPS,
     SHADING_NORMALS,
     SHADOW_TERMINATOR,
@@ -67,7 +68,8 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
     - shading normals are needed iff a mesh in the scene has vertex normals and the integrator
       shades with normals (all but ``albedo`` and ``depth``); normal maps iff a used material
       has one and the integrator shades with normals; the shadow terminator's falloff iff
-      either is needed and the integrator samples lights.
+      either is needed and the integrator samples lights, and so is bending them toward the
+      viewer.
     """
     table = scene.lights
     weight = table.weight
@@ -200,6 +202,12 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
         "shading normals on surfaces that reflect light",
         "no shading normals" if not tilted else "no reflected light",
     )
+    decide(
+        "normal_bending",
+        tilted and integrator.samples_lights,
+        "shading normals the viewer may fall below",
+        "no shading normals" if not tilted else "no shaded paths",
+    )
     return EffectPlan(flags, reasons)
 
 
@@ -232,5 +240,5 @@ def effect_plan(scene, settings: fmt.RenderSettings) -> EffectPlan:
     if not flags & LIGHT_SAMPLES:
         flags &= ~SHADOWS
     if not flags & (SHADING_NORMALS | NORMAL_MAPS):
-        flags &= ~SHADOW_TERMINATOR
+        flags &= ~(SHADOW_TERMINATOR | NORMAL_BENDING)
     return EffectPlan(flags, reasons)

@@ -40,6 +40,10 @@ with its geometric normal, faceted)."""
 NORMAL_MAPS = 1 << 18
 """Tangent-space normal maps where rays hit materials that have them
 (``tracer.shading.normal_maps``)."""
+NORMAL_BENDING = 1 << 19
+"""Turning a shading normal toward the viewer where the viewer is below it
+(``tracer.shading.shading_normals.bent_normal``); off: such points are black, as Mitsuba and
+pbrt shade them."""
 SHADOW_TERMINATOR = 1 << 17
 """Chiang et al.'s falloff of light reflected where shading and geometric normals disagree
 (``tracer.shading.shading_normals.terminator``); off: shading normals without it, as Mitsuba and
@@ -78,6 +82,7 @@ EFFECTS = {
     "shading_normals": SHADING_NORMALS,
     "normal_maps": NORMAL_MAPS,
     "shadow_terminator": SHADOW_TERMINATOR,
+    "normal_bending": NORMAL_BENDING,
 }
 ALL = sum(EFFECTS.values())
 MATERIAL_EFFECTS = SPECULAR | GLOSSY | REFRACTION | ABSORPTION

@@ -171,8 +171,10 @@ def vertex_shader(materials: bool, lights: bool):
         if plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
             smooth, ns = surface_normal(s, mat, k, j, b0, b1, b2, ng, plan)
             ns = ns if front else (-ns[0], -ns[1], -ns[2])
-            if smooth:
+            if smooth and plan & flags.NORMAL_BENDING:
                 ns = bent_normal(ns, n, wo)
+        # Unbent, a viewer below the shading normal sees no scattered light (Mitsuba's rule).
+        dark = smooth and dot(wo, ns) <= 0.0
 
         # Absorb along a segment inside a dielectric (Beer-Lambert).
         if materials and plan & flags.ABSORPTION and not front:
@@ -196,7 +198,7 @@ def vertex_shader(materials: bool, lights: bool):
                 L = (L[0] + beta[0] * s.mat_emission[mat, 0] * w,
                      L[1] + beta[1] * s.mat_emission[mat, 1] * w,
                      L[2] + beta[2] * s.mat_emission[mat, 2] * w)  # fmt: skip
-        if depth >= max_depth:
+        if depth >= max_depth or dark:
             state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
 

@@ -276,6 +276,7 @@ EffectName = Literal[
     "shading_normals",
     "normal_maps",
     "shadow_terminator",
+    "normal_bending",
 ]
 """Effects a user may switch off (docs/effects.md)."""
 

@@ -1,16 +1,17 @@
-"""What shading with interpolated normals needs beyond the BSDFs: the normal bent so a mirror
-reflection stays above the surface, and the shadow terminator's smooth falloff.
+"""What shading with interpolated normals needs beyond the BSDFs: the normal bent where the
+viewer falls below it, and the shadow terminator's smooth falloff.
 
 Every BSDF is evaluated about the shading normal ``ns``; the geometric normal ``n`` (turned
 toward the viewer, like ``ns``) still decides sidedness, which side a ray leaves from, and
 whether a direction counts as reflection or transmission (``geometric_side``), so light never
 leaks through a surface whose shading normal leans over its geometric one.
 
-- **Bending** (Keller et al., "The Iray Light Transport Simulation and Rendering System",
-  2017; Houdini's *Normal Clamp*): where the mirror reflection of ``wo`` about ``ns`` would
-  point below the geometric surface (always the case when ``wo`` is below the shading
-  hemisphere, the cause of black fringes), ``ns`` becomes the half vector between ``wo`` and
-  that reflection lifted to ``BEND_LIFT`` above the tangent plane.
+- **Bending**: where ``wo`` falls below the shading hemisphere (``wo . ns < 0``, the cause of
+  black fringes), ``ns`` is turned toward ``wo`` in their common plane until
+  ``wo . ns = BEND_COSINE``: the smallest change that fixes it. Keller et al. ("The Iray Light
+  Transport Simulation and Rendering System", 2017) and Houdini's *Normal Clamp* bend further,
+  until ``wo``'s mirror reflection is above the surface; we do not, so wherever Mitsuba and
+  pbrt (which do not bend) shade a point, we shade it as they do.
 - **Terminator** (Chiang, Li and Burley, "Taming the Shadow Terminator", SIGGRAPH 2019 talk):
   reflected light is scaled by ``-G^3 + G^2 + G`` with
   ``G = min(1, (n . wi) / ((ns . wi)(ns . n)))``, which fades it out smoothly where the
@@ -21,32 +22,25 @@ import math
 
 from tracer.kernel.jit import jit_inline
 
-BEND_LIFT = 0.01
-"""Cosine with the geometric normal of a mirror reflection that bending raises (it was lower)."""
+BEND_COSINE = 0.01
+"""The cosine between ``wo`` and a shading normal that bending leaves (it was lower)."""
 
 
 @jit_inline
 def bent_normal(ns, n, wo):
-    """``ns`` (unit, on ``n``'s side) bent toward ``n`` just enough that ``wo``'s mirror
-    reflection about it lies ``BEND_LIFT`` above the surface; ``ns`` itself if it already does."""
-    c = 2.0 * (wo[0] * ns[0] + wo[1] * ns[1] + wo[2] * ns[2])
-    r = (c * ns[0] - wo[0], c * ns[1] - wo[1], c * ns[2] - wo[2])
-    r_n = r[0] * n[0] + r[1] * n[1] + r[2] * n[2]
-    if r_n >= BEND_LIFT:
+    """``ns`` (unit, on ``n``'s side) turned toward ``wo`` just enough that ``wo . ns`` is
+    ``BEND_COSINE``, where it was less; ``ns`` itself otherwise."""
+    a = wo[0] * ns[0] + wo[1] * ns[1] + wo[2] * ns[2]
+    if a >= BEND_COSINE:
         return ns
-    # r on the tangent plane (its part along n removed), scaled to leave BEND_LIFT along n.
-    t = (r[0] - r_n * n[0], r[1] - r_n * n[1], r[2] - r_n * n[2])
-    t_len = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-    if t_len > 0.0:
-        k = math.sqrt(1.0 - BEND_LIFT * BEND_LIFT) / t_len
-        r = (t[0] * k + BEND_LIFT * n[0], t[1] * k + BEND_LIFT * n[1], t[2] * k + BEND_LIFT * n[2])
-    else:
-        r = n
-    h = (wo[0] + r[0], wo[1] + r[1], wo[2] + r[2])
-    h_len = math.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
-    if not h_len > 0.0:
+    # The part of ns across wo, then the unit vector in their plane at BEND_COSINE to wo.
+    p = (ns[0] - a * wo[0], ns[1] - a * wo[1], ns[2] - a * wo[2])
+    p_len = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+    if not p_len > 0.0:
         return n
-    return (h[0] / h_len, h[1] / h_len, h[2] / h_len)
+    k = math.sqrt(1.0 - BEND_COSINE * BEND_COSINE) / p_len
+    return (BEND_COSINE * wo[0] + k * p[0], BEND_COSINE * wo[1] + k * p[1],
+            BEND_COSINE * wo[2] + k * p[2])  # fmt: skip
 
 
 @jit_inline
