@@ -156,7 +156,8 @@ class ProgressiveFrame:
     denoised: DenoisedTarget | None = None
     """Measure the target on the denoised frame (the parts must carry AOVs)."""
     adaptive: str = "off"
-    """Adaptive sampling: ``auto``, ``on`` or ``off`` (``cluster.adaptive``)."""
+    """Adaptive sampling: ``auto``, ``on`` or ``off`` (``cluster.adaptive``); ``auto`` is off
+    for a :class:`DenoisedTarget` (its gain with the denoiser is not measured)."""
     sums: np.ndarray = field(init=False, repr=False)
     """Per part, the sum of its samples' images, float64 (PARTS, H, W, 3)."""
     part_spp: int = 0
@@ -387,7 +388,10 @@ class ProgressiveFrame:
         )
         self._check_stop()
         if self.stopped is None:
-            self._rates = adaptive.next_rates(self.adaptive, parts, self.part_counts, self.part_spp)
+            mode = self.adaptive
+            if mode == "auto" and self.denoised is not None:  # not measured with the denoiser
+                mode = "off"
+            self._rates = adaptive.next_rates(mode, parts, self.part_counts, self.part_spp)
 
     def _check_stop(self) -> None:
         goal = self.goal
