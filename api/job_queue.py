@@ -192,7 +192,7 @@ class JobQueue:
             write_image(path, layers["beauty"])
         else:
             path = job_dir(self.settings, run.id) / f"{name}.npz"
-            kept = ("denoise", "ids", "error_of")
+            kept = ("denoise", "ids", "error_of", "mean_spp", "adaptive_waves")
             write_layers(path, layers, {k: v for k, v in info.items() if k in kept})
         position = next(i for i, f in enumerate(run.frames) if f.number == spec.number)
         self.store.add_frame(
@@ -214,6 +214,7 @@ class JobQueue:
                 "seconds": round(info["seconds"], 4),
                 "error_estimate": info["error_estimate"],
                 "error_of": info.get("error_of"),
+                "mean_spp": info.get("mean_spp"),
                 "url": f"/v1/jobs/{run.id}/frames/{spec.number}",
             },
         )

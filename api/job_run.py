@@ -72,6 +72,7 @@ def job_state(state: SceneState, request: dict) -> SceneState:
         aovs=request.get("aovs"),
         denoise=request.get("denoise"),
         denoise_prefilter=request.get("denoise_prefilter"),
+        adaptive=request.get("adaptive"),
     )
 
 
@@ -208,6 +209,7 @@ class JobRun:
             self.goal,
             clock=lambda: sizer.seconds_total,
             denoised=DenoisedTarget.of(request.settings, self.goal),
+            adaptive=request.settings.adaptive,
         )
         step = p.next_part()
         while step is not None:
@@ -222,7 +224,8 @@ class JobRun:
             if step is not None:
                 yield
         layers, made = yield from off_thread(lambda: frame_layers(p.image, p.aov, request.settings))
-        made = {**made, "error_of": p.summary()["error_of"]}
+        summary = p.summary()
+        made = {**made, **{k: summary[k] for k in ("error_of", "mean_spp", "adaptive_waves")}}
         return self._complete(spec, layers, made, p.spp, p.error, p.elapsed)
 
     def _part(self, coordinator, request: FrameRequest) -> Generator:

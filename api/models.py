@@ -4,7 +4,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
-from tracer.integrators.names import DENOISE, DENOISE_PREFILTER, KERNELS
+from tracer.integrators.names import ADAPTIVE, DENOISE, DENOISE_PREFILTER, KERNELS
 from tracer.scene import format as fmt
 
 MAX_CAMERA_PATH = 10_000
@@ -217,6 +217,12 @@ class JobCreate(Strict):
         "noisy (a lens aperture or a textured material), on or off (the scene's "
         "render.denoise_prefilter by default)",
     )
+    adaptive: Literal[ADAPTIVE] | bool | None = Field(
+        default=None,
+        description="adaptive sampling with target_error or time_budget: each wave gives "
+        "pixels samples by their estimated share of the error; auto where it is predicted to "
+        "win, on (true) or off (false) (the scene's render.adaptive by default)",
+    )
     frames: list[Annotated[int, Field(ge=0, lt=MAX_JOB_FRAMES)]] | None = Field(
         default=None,
         max_length=MAX_JOB_FRAMES,
@@ -236,6 +242,8 @@ class JobCreate(Strict):
         modes = [m for m in (self.target_error, self.time_budget) if m is not None]
         if len(modes) > 1 or (modes and self.spp is not None):
             raise ValueError("give at most one of spp, target_error and time_budget")
+        if self.adaptive is not None and not modes:
+            raise ValueError("adaptive applies to jobs by target_error or time_budget")
         if self.kind == "still" and (self.frames is not None or self.camera_path is not None):
             raise ValueError("frames and camera_path are for animations (kind: animation)")
         if self.kind == "animation" and self.camera is not None:

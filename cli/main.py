@@ -295,6 +295,14 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     add_kernel_option(parser)
     add_layer_options(parser)
     parser.add_argument(
+        "--adaptive",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="adaptive sampling with --target-error or --time-budget: each wave gives pixels "
+        "samples by their estimated share of the error (default: the scene's render.adaptive, "
+        "auto: where it is predicted to win; docs/accuracy.md)",
+    )
+    parser.add_argument(
         "--threads",
         type=positive_int,
         help="render threads (CPUs) per tracer, or of this process when rendering in it "

@@ -27,6 +27,7 @@ def with_overrides(
     aovs: bool | None = None,
     denoise: str | None = None,
     denoise_prefilter: str | None = None,
+    adaptive: str | bool | None = None,
 ) -> SceneState:
     """``state`` with its camera's size and its render settings overridden (None keeps the
     scene's value), and ``denoise_prefilter`` ``auto`` resolved for its materials and camera
@@ -43,6 +44,7 @@ def with_overrides(
             aovs=aovs,
             denoise=denoise,
             denoise_prefilter=denoise_prefilter,
+            adaptive=adaptive,
         )
     except pydantic.ValidationError as exc:
         raise SceneError(format_validation_error(exc)) from None

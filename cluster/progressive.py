@@ -16,6 +16,13 @@ pixel, seen by one part) are *spot-checked* before the estimate: rendered again,
 independently, to ``SPOT_CHECK_FACTOR`` times the frame's samples, topping up their checks of
 earlier waves (``tracer.accuracy.spot_check``).
 
+With adaptive sampling (``cluster.adaptive``; ``mode`` ``auto``, ``on`` or ``off``), a wave
+gives each pixel the first ``counts[i]`` of its parts' samples, by the pixel's estimated share
+of the error after the earlier waves; every part of a wave gives a pixel the same count, so
+each pixel's parts stay independent and identically distributed, and the estimate stays
+calibrated. ``spp`` stays the sample range the waves used (the most any pixel took),
+:attr:`ProgressiveFrame.pixel_spp` is what each pixel took.
+
 A frame that is to be denoised (:class:`DenoisedTarget`) measures the target on the denoised
 image instead, once its parts are deep enough for that estimate
 (``tracer.accuracy.denoised_error``): each wave's mean is denoised and its error estimated; until
@@ -37,6 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cluster import adaptive
 from tracer.accuracy.denoised_error import denoise_and_estimate
 from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
 from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
@@ -103,12 +111,14 @@ class DenoisedTarget:
 @dataclass(frozen=True)
 class Part:
     """A part of a wave to render: samples ``[sample_start, sample_start + spp)`` of every
-    pixel."""
+    pixel, or with ``counts`` (int32, row-major) ``[sample_start, sample_start + counts[i])``
+    of pixel ``i``."""
 
     sample_start: int
     spp: int
     index: int
     """Which of the wave's ``PARTS`` parts (0 first)."""
+    counts: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass
@@ -123,6 +133,10 @@ class WaveRecord:
     """Pixels spot-checked for the estimate."""
     error_of: str = "beauty"
     """Which image ``error`` is of: the ``beauty`` or the ``denoised`` one."""
+    mean_spp: float = 0.0
+    """Samples per pixel taken so far, on average (``spp`` without adaptive sampling)."""
+    adaptive: bool = False
+    """Whether this wave's pixels took unequal samples."""
 
 
 @dataclass
@@ -141,10 +155,16 @@ class ProgressiveFrame:
     clock: Callable[[], float] = time.monotonic
     denoised: DenoisedTarget | None = None
     """Measure the target on the denoised frame (the parts must carry AOVs)."""
+    adaptive: str = "off"
+    """Adaptive sampling: ``auto``, ``on`` or ``off`` (``cluster.adaptive``); ``auto`` is off
+    for a :class:`DenoisedTarget` (its gain with the denoiser is not measured)."""
     sums: np.ndarray = field(init=False, repr=False)
     """Per part, the sum of its samples' images, float64 (PARTS, H, W, 3)."""
     part_spp: int = 0
-    """Samples per pixel in each part after the last complete wave."""
+    """Samples per pixel in each part after the last complete wave (the sample range; with
+    adaptive sampling the most a pixel has)."""
+    part_counts: np.ndarray = field(init=False, repr=False)
+    """Samples of each pixel in each part after the last complete wave, int64 (H, W)."""
     work: float | None = 0.0
     """The kernels' work count of every part so far (None once a part came without it)."""
     error: float | None = None
@@ -156,14 +176,20 @@ class ProgressiveFrame:
     started: float | None = None
     _pending: Part | SpotCheck | None = None
     _ledger: SpotCheckLedger = field(init=False, repr=False)
-    _wave: list[int] = field(default_factory=list)
-    """Samples per pixel of the current wave's parts rendered so far."""
+    _wave_parts: list[Part] = field(default_factory=list)
+    """The current wave's parts rendered so far."""
+    _wave_adaptive: bool = False
     _wave_seconds: float = 0.0
-    _last_wave: tuple[int, float] = (0, 0.0)
-    """Samples per pixel and seconds of the last complete wave."""
+    _last_wave: tuple[float, float] = (0.0, 0.0)
+    """Samples per pixel (mean) and seconds of the last complete wave."""
+    _rates: np.ndarray | None = None
+    """The next wave's sampling rates (``cluster.adaptive``; None: uniform)."""
 
     def __post_init__(self) -> None:
+        if self.adaptive not in adaptive.MODES:
+            raise ValueError(f"adaptive must be one of {', '.join(adaptive.MODES)}")
         self.sums = np.zeros((PARTS, self.height, self.width, 3), np.float64)
+        self.part_counts = np.zeros((self.height, self.width), np.int64)
         self.aov_sums: np.ndarray | None = None
         """Sample-weighted sums of the parts' AOVs (H, W, ``aov.CHANNELS``), when they carry
         them."""
@@ -175,7 +201,27 @@ class ProgressiveFrame:
     @property
     def spp(self) -> int:
         """Samples per pixel taken so far (every part)."""
-        return PARTS * self.part_spp + sum(self._wave)
+        return PARTS * self.part_spp + sum(p.spp for p in self._wave_parts)
+
+    @property
+    def pixel_spp(self) -> np.ndarray:
+        """Samples taken so far of each pixel (every part), int64 (H, W)."""
+        spp = PARTS * self.part_counts
+        for part in self._wave_parts:
+            spp = spp + (part.spp if part.counts is None else self._grid(part.counts))
+        return spp
+
+    @property
+    def mean_spp(self) -> float:
+        """Samples per pixel taken so far, on average over the pixels."""
+        return adaptive.mean(self.pixel_spp)
+
+    def _grid(self, counts: np.ndarray) -> np.ndarray:
+        return counts.reshape(self.height, self.width).astype(np.int64)
+
+    def _weights(self, part: Part) -> int | np.ndarray:
+        """What the part's mean image is multiplied by to give its sums: its samples."""
+        return part.spp if part.counts is None else self._grid(part.counts)[..., None]
 
     @property
     def done(self) -> bool:
@@ -189,7 +235,7 @@ class ProgressiveFrame:
     @property
     def image(self) -> np.ndarray:
         """The mean of every sample taken, float32 (H, W, 3)."""
-        return (self.sums.sum(axis=0) / max(1, self.spp)).astype(np.float32)
+        return (self.sums.sum(axis=0) / np.maximum(1, self.pixel_spp)[..., None]).astype(np.float32)
 
     @property
     def aov(self) -> np.ndarray | None:
@@ -197,7 +243,7 @@ class ProgressiveFrame:
         first part's ids; None when the parts carry none."""
         if self.aov_sums is None:
             return None
-        mean = (self.aov_sums / max(1, self.spp)).astype(np.float32)
+        mean = (self.aov_sums / np.maximum(1, self.pixel_spp)[..., None]).astype(np.float32)
         mean[..., IDS] = self.aov_ids
         return mean
 
@@ -210,6 +256,9 @@ class ProgressiveFrame:
             "max_spp": goal.max_spp,
             "error_estimate": self.error,
             "spp": self.spp,
+            "mean_spp": self.mean_spp,
+            "adaptive": self.adaptive,
+            "adaptive_waves": sum(w.adaptive for w in self.waves),
             "waves": len(self.waves),
             "spot_checks": self.waves[-1].checked if self.waves else 0,
             "error_of": self.waves[-1].error_of if self.waves else None,
@@ -224,8 +273,13 @@ class ProgressiveFrame:
             return self._pending
         if self.started is None:
             self.started = self.clock()
-        spp = self._wave[0] if self._wave else self._next_part_spp()
-        self._pending = Part(self.spp, spp, len(self._wave))
+        if self._wave_parts:
+            first = self._wave_parts[0]
+            spp, counts = first.spp, first.counts
+        else:
+            spp = self._next_part_spp()
+            counts = None if self._rates is None else adaptive.wave_counts(self._rates, spp)
+        self._pending = Part(self.spp, spp, len(self._wave_parts), counts)
         return self._pending
 
     def add_part(
@@ -252,19 +306,26 @@ class ProgressiveFrame:
         if aov is not None:
             if self.aov_sums is None:
                 self.aov_sums = np.zeros(np.shape(aov), np.float64)
-            self.aov_sums += np.asarray(aov, np.float64) * part.spp
+            self.aov_sums += np.asarray(aov, np.float64) * self._weights(part)
             if part.sample_start == 0:
                 self.aov_ids = np.array(aov[..., IDS], np.float32)
         self.work = None if work is None or self.work is None else self.work + float(work)
-        self.sums[part.index] += np.asarray(rgb, np.float64) * part.spp
-        self._wave.append(part.spp)
+        self.sums[part.index] += np.asarray(rgb, np.float64) * self._weights(part)
+        self._wave_parts.append(part)
         self._wave_seconds = seconds if part.index == 0 else self._wave_seconds + seconds
-        if len(self._wave) < PARTS:
+        if len(self._wave_parts) < PARTS:
             return
         self.part_spp += part.spp
-        self._wave = []
-        self._last_wave = (PARTS * part.spp, self._wave_seconds)
-        self._pending = self._ledger.plan(self.sums / self.part_spp, self.spp, self.work)
+        wave_spp = float(part.spp)
+        if part.counts is None:
+            self.part_counts += part.spp
+        else:
+            self.part_counts += self._grid(part.counts)
+            wave_spp = adaptive.mean(part.counts)
+        self._wave_parts = []
+        self._last_wave = (PARTS * wave_spp, self._wave_seconds)
+        self._wave_adaptive = part.counts is not None
+        self._pending = self._ledger.plan(self._parts(), self.spp, self.work)
         if self._pending is None:
             self._end_wave()
 
@@ -287,9 +348,13 @@ class ProgressiveFrame:
         self._last_wave = (wave_spp, wave_seconds + seconds)
         self._end_wave()
 
+    def _parts(self) -> np.ndarray:
+        """The parts' mean images (PARTS, H, W, 3) after the last complete wave."""
+        return self.sums / self.part_counts[..., None]
+
     def _end_wave(self) -> None:
         checks = self._ledger.checks()
-        parts = self.sums / self.part_spp
+        parts = self._parts()
         self.error = estimate_rel_error(parts, checks=checks)
         error_of = "beauty"
         target = self.denoised
@@ -298,7 +363,7 @@ class ProgressiveFrame:
             try:
                 _, denoised_error = denoise_and_estimate(
                     parts,
-                    self.part_spp,
+                    int(self.part_counts.min()),
                     guides["albedo"],
                     guides["normal"],
                     target.quality,
@@ -310,8 +375,23 @@ class ProgressiveFrame:
             if denoised_error is not None:
                 self.error, error_of = denoised_error, "denoised"
         checked = 0 if checks is None else len(checks.pixels)
-        self.waves.append(WaveRecord(self.spp, self.error, self.elapsed, checked, error_of))
+        self.waves.append(
+            WaveRecord(
+                self.spp,
+                self.error,
+                self.elapsed,
+                checked,
+                error_of,
+                self.mean_spp,
+                self._wave_adaptive,
+            )
+        )
         self._check_stop()
+        if self.stopped is None:
+            mode = self.adaptive
+            if mode == "auto" and self.denoised is not None:  # not measured with the denoiser
+                mode = "off"
+            self._rates = adaptive.next_rates(mode, parts, self.part_counts, self.part_spp)
 
     def _check_stop(self) -> None:
         goal = self.goal
@@ -343,7 +423,8 @@ class ProgressiveFrame:
             needed = self.spp * (self.error / goal.target_error) ** 2 * PLAN_MARGIN
             spp = min(spp, max(1, math.ceil((needed - self.spp) / PARTS)))
         if goal.time_budget is not None:
-            spp = min(spp, self._fits_in_budget())
+            share = 1.0 if self._rates is None else adaptive.mean(self._rates)
+            spp = min(spp, int(self._fits_in_budget() / share))
         return max(1, spp)
 
 
@@ -353,6 +434,7 @@ def part_request(request: FrameRequest, part: Part) -> FrameRequest:
         request,
         settings=fmt.override(request.settings, spp=part.spp),
         sample_start=part.sample_start,
+        counts=part.counts,
     )
 
 
@@ -394,6 +476,7 @@ def render_progressive(
         state.camera.height,
         goal,
         denoised=DenoisedTarget.of(state.render, goal),
+        adaptive=state.render.adaptive,
     )
     done = None
     while not progress.done:

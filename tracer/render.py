@@ -76,20 +76,23 @@ def render_lines(
     sample_start: int = 0,
     threads: int | None = None,
     plan: EffectPlan | None = None,
+    counts: np.ndarray | None = None,
 ) -> RenderedLines:
     """Render lines [y0, y1) of a frame: the pixel run [y0 * W, y1 * W) (:func:`render_pixels`).
 
     Pixels take samples [sample_start, sample_start + settings.spp); two calls with disjoint
     sample ranges give independent estimates that average to the larger render. ``threads``
     defaults to every CPU this process may use. ``plan`` is the effect plan (default: the one
-    ``tracer.integrators.effects.effect_plan`` makes of the scene and settings).
+    ``tracer.integrators.effects.effect_plan`` makes of the scene and settings). ``counts``
+    (one per pixel of the frame, each in [1, settings.spp]) gives pixel ``i`` only the samples
+    [sample_start, sample_start + counts[i]) (adaptive sampling); None gives each all of them.
     """
     camera = camera or scene.camera
     if not 0 <= y0 < y1 <= camera.height:
         raise ValueError(f"line range [{y0}, {y1}) is not inside [0, {camera.height})")
     width = camera.width
     run = render_pixels(
-        scene, y0 * width, y1 * width, camera, settings, frame, sample_start, threads, plan
+        scene, y0 * width, y1 * width, camera, settings, frame, sample_start, threads, plan, counts
     )
     lines = y1 - y0
     return RenderedLines(
@@ -114,6 +117,7 @@ def render_pixels(
     sample_start: int = 0,
     threads: int | None = None,
     plan: EffectPlan | None = None,
+    counts: np.ndarray | None = None,
 ) -> RenderedPixels:
     """Render the pixel run [p0, p1) of a frame (row-major pixel indices ``y * W + x``; a run
     may start and end anywhere in a line). Every pixel gets the bits it gets in any other split
@@ -137,7 +141,7 @@ def render_pixels(
     start = time.perf_counter()
     aovs = settings.renders_aovs
     run_flags = plan.flags | (flags.AOVS if aovs else 0)
-    run = pixel_run(scene, camera, settings, p0, p1, frame, sample_start, run_flags)
+    run = pixel_run(scene, camera, settings, p0, p1, frame, sample_start, run_flags, counts)
     kernel = chosen_kernel(settings, plan.flags)
     rgb, cost, rays, aov = trace_run(kernel, integrator.arguments(scene, run), run, threads, aovs)
     if aov is not None:

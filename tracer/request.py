@@ -1,6 +1,8 @@
 """One frame to render, as every layer from the front doors to the kernel speaks of it."""
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from tracer.errors import SceneError
 from tracer.scene import format as fmt
@@ -17,6 +19,10 @@ class FrameRequest:
     A region is whole lines, or a run inside one line: its :meth:`view` is then the
     rectangle its units are cut from, and its pixels get the bits they get in the whole frame.
 
+    ``counts`` (int32, one per pixel of the frame, row-major, each in [1, ``settings.spp``])
+    gives pixel ``i`` only the samples ``[sample_start, sample_start + counts[i])`` (adaptive
+    sampling, ``cluster.adaptive``); None gives every pixel all of them.
+
     ``camera``, ``settings`` and ``version`` left None mean the scene's own at the version a
     frame is scheduled at; :meth:`resolved` fills them in.
     """
@@ -28,6 +34,7 @@ class FrameRequest:
     version: int | None = None
     units: tuple[int, int] | None = None
     region: tuple[int, int] | None = None
+    counts: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.frame < 0 or self.sample_start < 0:

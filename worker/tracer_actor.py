@@ -258,6 +258,7 @@ class Tracer:
                     sample_start,
                     self.threads,
                     plan,
+                    request.counts,
                 )
                 rgb, aov = out.rgb, out.aov
                 cost, rays = units.per_unit(a, b, out.cost), units.per_unit(a, b, out.rays)

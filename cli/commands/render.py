@@ -46,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
         aovs=args.aov,
         denoise=args.denoise,
         denoise_prefilter=args.denoise_prefilter,
+        adaptive=args.adaptive,
     )
     camera, settings = state.camera, state.render
     check_layer_choice(args.layer, settings)
@@ -123,6 +124,10 @@ def goal_of(args: argparse.Namespace, frames: int = 1) -> Goal | None:
     if args.target_error is None and args.time_budget is None:
         if args.max_spp is not None:
             raise UsageError("--max-spp applies with --target-error or --time-budget only")
+        if args.adaptive is not None:
+            raise UsageError(
+                "--adaptive / --no-adaptive apply with --target-error or --time-budget only"
+            )
         return None
     if args.spp is not None:
         raise UsageError(

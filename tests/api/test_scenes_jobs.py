@@ -231,6 +231,30 @@ def test_a_denoised_job_to_a_target_error_says_which_image_it_estimated(client, 
     assert metadata["error_of"] == "denoised"
 
 
+def test_a_job_chooses_adaptive_sampling(client, tmp_path):
+    """``adaptive`` on a job by target error reaches its frames (their metadata has the mean
+    samples per pixel and the adaptive waves, as do their events); on a job by spp it is a
+    422."""
+    from tracer.io.layers import read_layers
+
+    scene = upload_tiny(client)
+    body = {"scene_id": scene["id"], "width": 24, "height": 16, "target_error": 1e-4}
+    body |= {"aovs": True}  # a bundle of layers, which keeps the metadata
+    for adaptive, waves in ((False, 0), ("on", None)):
+        r = client.post("/v1/jobs", json=body | {"max_spp": 64, "adaptive": adaptive})
+        assert r.status_code == 202, r.text
+        job = wait_job(client, r.json()["id"])
+        assert job["status"] == "done", job
+        bundle = tmp_path / "frame.npz"
+        bundle.write_bytes(client.get(f"/v1/jobs/{job['id']}/frames/0?format=npz").content)
+        _, metadata = read_layers(bundle)
+        assert metadata["mean_spp"] <= 64
+        if waves is not None:
+            assert metadata["adaptive_waves"] == waves and metadata["mean_spp"] == 64
+    r = client.post("/v1/jobs", json={"scene_id": scene["id"], "spp": 2, "adaptive": "on"})
+    assert r.status_code == 422 and "adaptive applies" in r.text
+
+
 def test_textured_bundle_renders_like_the_library(client):
     """The textured sample scene uploaded as a bundle (JSON, GLB, OBJ, MTL, PNGs) renders
     through the cluster exactly as the library renders it: its images and UVs reach the

@@ -13,6 +13,7 @@ import signal
 import socket
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -430,6 +431,32 @@ def test_aovs_travel_with_the_frame_bit_for_bit(shared, pooled):
         assert np.array_equal(region.aov.reshape(-1, aov.CHANNELS), whole.aov[227:253])
         plain = coordinator.render_frame(FrameRequest(2, sample_start=1))
         assert plain.aov is None and np.array_equal(plain.rgb, frame.rgb)
+    finally:
+        coordinator.use_balancer("cost-aware")
+        coordinator.line_pool = True
+
+
+@pytest.mark.parametrize("pooled", TRANSPORTS, ids=TRANSPORT_IDS)
+@pytest.mark.parametrize("tracers", [1, 2, 3])
+def test_sample_counts_per_pixel_travel_bit_for_bit(shared, tracers, pooled):
+    """A part of an adaptive wave (a sample count per pixel, ``cluster.adaptive``) over 1-3
+    tracers with a dynamic tail (pooled or in calls), and a region of it: the pixels
+    render_pixels gives in one call."""
+    coordinator = shared(tracers)
+    coordinator.balancer = always_tail()
+    coordinator.line_pool = pooled
+    state = coordinator.graph.state
+    settings = fmt.override(state.render, spp=4)
+    width, height = state.camera.width, state.camera.height
+    counts = (np.arange(width * height) * 7 % 4 + 1).astype(np.int32)
+    compiled = compile_scene(state)
+    whole = render_pixels(compiled, 0, width * height, state.camera, settings, 2, 1, counts=counts)
+    try:
+        request = FrameRequest(2, settings=settings, sample_start=1, counts=counts)
+        frame = coordinator.render_frame(request)
+        assert np.array_equal(frame.rgb.reshape(-1, 3), whole.rgb)
+        region = coordinator.render_frame(replace(request, region=(227, 253)))
+        assert np.array_equal(region.rgb.reshape(-1, 3), whole.rgb[227:253])
     finally:
         coordinator.use_balancer("cost-aware")
         coordinator.line_pool = True

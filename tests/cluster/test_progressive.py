@@ -330,9 +330,13 @@ def test_through_the_coordinator(coordinator):
     """Waves through tracer actors: the image is the mean of samples [0, spp), which the
     library renders in one call (equal up to float32 rounding of the part means), and the
     reported error is the estimate from the parts and their spot checks (one pixel of this
-    32x24 image per wave); a target at 1.5 times it stops the frame."""
+    32x24 image per wave); a target at 1.5 times it stops the frame. Uniform waves (adaptive
+    off: ``tests/cluster/test_adaptive.py`` checks adaptive ones)."""
     state = coordinator.graph.state
-    progress = render_progressive(coordinator, Goal(max_spp=32))
+    camera = state.camera
+    progress = ProgressiveFrame(camera.width, camera.height, Goal(max_spp=32), adaptive="off")
+    while not progress.done:
+        progressive_step(coordinator, progress, FrameRequest(0, camera, state.render))
     assert progress.stopped == "max_spp" and progress.spp == 32
     expected = render_image(compile_scene(state), settings=override(state.render, spp=32))[0]
     np.testing.assert_allclose(progress.image, expected, rtol=1e-5, atol=1e-6)

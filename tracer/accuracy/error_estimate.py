@@ -168,6 +168,13 @@ def _readings(stack: np.ndarray, eps: float):
     return mean, variance, floor, terms, as_light, denominator
 
 
+def estimated_terms(parts: Images, eps: float = REL_EPSILON) -> np.ndarray:
+    """Per pixel and channel, the error terms :func:`estimate_rel_mse` averages (before spot
+    checks): the variance of the parts' mean over its estimated denominator, float64
+    (H, W, 3). Each pixel's parts need equal sample counts, not every pixel the same."""
+    return _readings(_parts(parts), eps)[3]
+
+
 def rel_denominators(parts: Images, eps: float = REL_EPSILON) -> np.ndarray:
     """Per pixel and channel, ``mu^2 + eps`` (the relative MSE's denominator) estimated from
     independent ``parts`` as :func:`estimate_rel_mse` does: robust to a firefly in one part,

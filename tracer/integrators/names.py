@@ -22,6 +22,10 @@ DENOISE_PREFILTER = ("auto", "on", "off")
 """``render.denoise_prefilter``'s choices: prefilter the denoiser's guides where they are noisy
 (``tracer.post.guides``), always, or never."""
 
+ADAPTIVE = ("auto", "on", "off")
+"""``render.adaptive``'s choices: adaptive sampling in progressive renders where it is predicted
+to win (``cluster.adaptive``), in every wave once the frame has a few samples, or never."""
+
 OUTPUT_LAYERS = (
     "beauty",
     "denoised",

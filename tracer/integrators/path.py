@@ -58,6 +58,7 @@ def path_kernel(materials: bool, lights: bool):
         p1,
         sample_start,
         spp,
+        counts,
         max_depth,
         rr_depth,
         seed,
@@ -78,7 +79,9 @@ def path_kernel(materials: bool, lights: bool):
 
         ``scene`` is a ``SceneArrays``. The outputs have a row per line the run touches (row 0 is
         line ``p0 // width``; pixels outside the run are left untouched): ``out_rgb`` float32
-        (rows, W, 3) gets the mean of samples [sample_start, sample_start + spp) of each pixel,
+        (rows, W, 3) gets the mean of samples [sample_start, sample_start + n) of each pixel, where
+        ``n`` is ``spp``, or with a non-empty ``counts`` (int32, one per pixel of the frame)
+        ``counts[i]`` for pixel ``i`` (adaptive sampling),
         ``out_cost`` int64 (rows, W) the work spent on it, ``out_rays`` int64 (rows, W) the rays
         traced for it (one per traversal: camera, continuation and shadow rays), and with the
         plan's ``flags.AOVS`` ``out_aov`` float32 (rows, W, ``aov.CHANNELS``) the mean of the
@@ -117,7 +120,8 @@ def path_kernel(materials: bool, lights: bool):
                 a_hits = 0
                 a_object = -1
                 a_material = -1
-                for sample in range(sample_start, sample_start + spp):
+                n_samples = spp if counts.shape[0] == 0 else counts[i]
+                for sample in range(sample_start, sample_start + n_samples):
                     key = sample_key(p_key, sample)
                     o, d = camera_sample_ray(camera, width, height, x, y, key)
                     state = camera_path()
@@ -165,18 +169,18 @@ def path_kernel(materials: bool, lights: bool):
                             break
                     L = state[0]
                     acc = (acc[0] + L[0], acc[1] + L[1], acc[2] + L[2])
-                out_rgb[row, x, 0] = acc[0] / spp
-                out_rgb[row, x, 1] = acc[1] / spp
-                out_rgb[row, x, 2] = acc[2] / spp
+                out_rgb[row, x, 0] = acc[0] / n_samples
+                out_rgb[row, x, 1] = acc[1] / n_samples
+                out_rgb[row, x, 2] = acc[2] / n_samples
                 out_cost[row, x] = cost
                 out_rays[row, x] = rays
                 if aovs:
                     for ch in range(3):
-                        out_aov[row, x, aov.ALBEDO + ch] = a_albedo[ch] / spp
-                        out_aov[row, x, aov.NORMAL + ch] = a_normal[ch] / spp
-                        out_aov[row, x, aov.POSITION + ch] = a_point[ch] / spp
-                    out_aov[row, x, aov.DEPTH] = a_depth / spp
-                    out_aov[row, x, aov.ALPHA] = a_hits / spp
+                        out_aov[row, x, aov.ALBEDO + ch] = a_albedo[ch] / n_samples
+                        out_aov[row, x, aov.NORMAL + ch] = a_normal[ch] / n_samples
+                        out_aov[row, x, aov.POSITION + ch] = a_point[ch] / n_samples
+                    out_aov[row, x, aov.DEPTH] = a_depth / n_samples
+                    out_aov[row, x, aov.ALPHA] = a_hits / n_samples
                     out_aov[row, x, aov.OBJECT_ID] = a_object
                     out_aov[row, x, aov.MATERIAL_ID] = a_material
 

@@ -6,7 +6,7 @@ gives each thread its traversal stacks, runs the parts and slices the run out of
 """
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -17,12 +17,16 @@ from tracer.kernel.threads import run_parts
 from tracer.scene import format as fmt
 from tracer.shading.camera import camera_array
 
+NO_COUNTS = np.zeros(0, np.int32)
+"""The kernels' ``counts`` of a uniform render: every pixel takes ``spp`` samples."""
+
 
 @dataclass(frozen=True)
 class PixelRun:
     """What a kernel needs of a render besides the scene: the camera (``camera_array``), the
-    frame's size, the pixel run [p0, p1), the first sample, the settings, the frame and the
-    effect plan's flags."""
+    frame's size, the pixel run [p0, p1), the first sample, the settings, the frame, the
+    effect plan's flags and the samples of each pixel of the frame (``counts``, int32; empty:
+    ``settings.spp`` each)."""
 
     camera: np.ndarray
     width: int
@@ -33,6 +37,7 @@ class PixelRun:
     settings: fmt.RenderSettings
     frame: int
     flags: int
+    counts: np.ndarray = field(default_factory=lambda: NO_COUNTS)
 
 
 def pixel_run(
@@ -44,9 +49,11 @@ def pixel_run(
     frame: int,
     sample_start: int,
     flags: int,
+    counts: np.ndarray | None = None,
 ) -> PixelRun:
     """The run [p0, p1) of a frame seen by ``camera`` (in world units; the kernels work in the
-    scene's render space, about ``scene.origin``)."""
+    scene's render space, about ``scene.origin``); ``counts``: samples per pixel of the frame
+    (:func:`check_counts`), None for ``settings.spp`` each."""
     cam = camera_array(
         np.asarray(camera.position) - scene.origin,
         np.asarray(camera.look_at) - scene.origin,
@@ -57,7 +64,24 @@ def pixel_run(
         camera.aperture_radius,
         camera.focus_distance,
     )
-    return PixelRun(cam, camera.width, camera.height, p0, p1, sample_start, settings, frame, flags)
+    if counts is None:
+        counts = NO_COUNTS
+    else:
+        counts = check_counts(counts, camera.width * camera.height, settings.spp)
+    return PixelRun(
+        cam, camera.width, camera.height, p0, p1, sample_start, settings, frame, flags, counts
+    )
+
+
+def check_counts(counts: np.ndarray, pixels: int, spp: int) -> np.ndarray:
+    """``counts`` as a writable int32 array (the kernels' type) of one count in [1, ``spp``]
+    for each of a frame's ``pixels``, or ValueError."""
+    counts = np.array(counts, dtype=np.int32).reshape(-1)
+    if counts.shape != (pixels,):
+        raise ValueError(f"expected a sample count for each of {pixels} pixels, got {counts.size}")
+    if pixels and not (1 <= int(counts.min()) and int(counts.max()) <= spp):
+        raise ValueError(f"sample counts must lie in [1, spp = {spp}]")
+    return counts
 
 
 def trace_run(

@@ -81,9 +81,9 @@ def stream_kernel(materials: bool, lights: bool):
     the same arguments as the path kernel's."""
 
     def trace_stream(
-        scene, camera, width, height, p0, p1, sample_start, spp, max_depth, rr_depth, seed,
-        frame, shadow_t_max, mode, plan, first, stride, stack_node, stack_t, out_rgb, out_cost,
-        out_rays, out_aov,
+        scene, camera, width, height, p0, p1, sample_start, spp, counts, max_depth, rr_depth,
+        seed, frame, shadow_t_max, mode, plan, first, stride, stack_node, stack_t, out_rgb,
+        out_cost, out_rays, out_aov,
     ):  # fmt: skip
         """Render pixel blocks ``first, first + stride, ...`` of the pixel run [p0, p1) into the
         outputs, as ``tracer.integrators.path``'s kernel does; it writes no AOVs (``out_aov``
@@ -108,17 +108,19 @@ def stream_kernel(materials: bool, lights: bool):
         shadow_on = np.zeros(cap, np.bool_)
         going = np.zeros(cap, np.bool_)
         order = np.empty(cap, np.int64)
-        counts = np.empty(s.mat_albedo.shape[0] + 1, np.int64)
+        material_counts = np.empty(s.mat_albedo.shape[0] + 1, np.int64)
         pixels = np.empty(batch_blocks * PIXEL_BLOCK, np.int64)
         sample_L = np.empty((batch_blocks * PIXEL_BLOCK * spp, 3))
         pixel_cost = np.empty(batch_blocks * PIXEL_BLOCK, np.int64)
         pixel_rays = np.empty(batch_blocks * PIXEL_BLOCK, np.int64)
+        pixel_n = np.empty(batch_blocks * PIXEL_BLOCK, np.int64)
         for batch in range(first, n_blocks, stride * batch_blocks):
             n_pixels = 0
             for block in range(batch, min(n_blocks, batch + stride * batch_blocks), stride):
                 start = p0 + block * PIXEL_BLOCK
                 for i in range(start, min(p1, start + PIXEL_BLOCK)):
                     pixels[n_pixels] = i
+                    pixel_n[n_pixels] = spp if counts.shape[0] == 0 else counts[i]
                     n_pixels += 1
             pixel_cost[:n_pixels] = 0
             pixel_rays[:n_pixels] = 0
@@ -126,9 +128,13 @@ def stream_kernel(materials: bool, lights: bool):
             next_sample = 0
             n = 0
             while True:
-                # Regenerate: new samples' camera rays fill the free slots.
+                # Regenerate: new samples' camera rays fill the free slots (pixel lp's
+                # samples have the slots [lp * spp, lp * spp + pixel_n[lp])).
                 while n < cap and next_sample < n_samples:
                     lp = next_sample // spp
+                    if next_sample - lp * spp >= pixel_n[lp]:
+                        next_sample = (lp + 1) * spp
+                        continue
                     i = pixels[lp]
                     y = i // width
                     key = sample_key(pixel_key(seed, frame, i), sample_start + next_sample % spp)
@@ -156,7 +162,7 @@ def stream_kernel(materials: bool, lights: bool):
                     pixel_cost[lp] += c
                     pixel_rays[lp] += 1
                 # Shade, in runs of one material.
-                _material_runs(s, hit_i, n, order, counts)
+                _material_runs(s, hit_i, n, order, material_counts)
                 for r in range(n):
                     q = order[r]
                     d = (path_f[q, 3], path_f[q, 4], path_f[q, 5])
@@ -209,12 +215,12 @@ def stream_kernel(materials: bool, lights: bool):
                 x = i - y * width
                 row = y - y_first
                 acc = (0.0, 0.0, 0.0)
-                for k in range(lp * spp, lp * spp + spp):
+                for k in range(lp * spp, lp * spp + pixel_n[lp]):
                     acc = (acc[0] + sample_L[k, 0], acc[1] + sample_L[k, 1],
                            acc[2] + sample_L[k, 2])  # fmt: skip
-                out_rgb[row, x, 0] = acc[0] / spp
-                out_rgb[row, x, 1] = acc[1] / spp
-                out_rgb[row, x, 2] = acc[2] / spp
+                out_rgb[row, x, 0] = acc[0] / pixel_n[lp]
+                out_rgb[row, x, 1] = acc[1] / pixel_n[lp]
+                out_rgb[row, x, 2] = acc[2] / pixel_n[lp]
                 out_cost[row, x] = pixel_cost[lp]
                 out_rays[row, x] = pixel_rays[lp]
 

@@ -56,6 +56,7 @@ def render_surface(
     p1,
     sample_start,
     spp,
+    counts,
     seed,
     frame,
     output,
@@ -97,7 +98,8 @@ def render_surface(
             acc = (0.0, 0.0, 0.0)
             cost = 0
             rays = 0
-            for sample in range(sample_start, sample_start + spp):
+            n_samples = spp if counts.shape[0] == 0 else counts[i]
+            for sample in range(sample_start, sample_start + n_samples):
                 key = sample_key(p_key, sample)
                 o, d = camera_sample_ray(camera, width, height, x, y, key)
                 k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
@@ -141,8 +143,8 @@ def render_surface(
                     ao = open_count / ao_samples
                     value = (ao, ao, ao)
                 acc = (acc[0] + value[0], acc[1] + value[1], acc[2] + value[2])
-            out_rgb[row, x, 0] = acc[0] / spp
-            out_rgb[row, x, 1] = acc[1] / spp
-            out_rgb[row, x, 2] = acc[2] / spp
+            out_rgb[row, x, 0] = acc[0] / n_samples
+            out_rgb[row, x, 1] = acc[1] / n_samples
+            out_rgb[row, x, 2] = acc[2] / n_samples
             out_cost[row, x] = cost
             out_rays[row, x] = rays

@@ -12,6 +12,7 @@ from pydantic import Field, field_validator, model_validator
 
 from tracer import config
 from tracer.integrators.names import (
+    ADAPTIVE,
     AOV_INTEGRATORS,
     DENOISE,
     DENOISE_PREFILTER,
@@ -335,6 +336,13 @@ class RenderSettings(Strict):
         "denoised (OIDN's recipe for noisy guides): auto where they are noisy (a lens aperture "
         "or a textured material), on, or off (docs/denoising.md)",
     )
+    adaptive: Literal[ADAPTIVE] = Field(
+        default="auto",
+        description="Adaptive sampling in progressive renders (a target error or a time "
+        "budget): each wave gives pixels samples by their estimated share of the error; auto "
+        "where it is predicted to win, on, or off (true and false mean on and off; "
+        "docs/accuracy.md). Renders of a fixed spp sample uniformly",
+    )
     ao_samples: int = Field(
         default=4, ge=1, le=1024, description="Ambient occlusion rays per camera sample"
     )
@@ -362,6 +370,13 @@ class RenderSettings(Strict):
                 "use kernel auto or single"
             )
         return self
+
+    @field_validator("adaptive", mode="before")
+    @classmethod
+    def _adaptive_bool(cls, value):
+        if isinstance(value, bool):
+            return "on" if value else "off"
+        return value
 
     @field_validator("effects")
     @classmethod
