@@ -10,6 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tracer.scene import vertex_normals
 from tracer.scene.model import Mesh
 from tracer.shading.textures import uv_rows
 
@@ -28,25 +29,10 @@ class Corners(NamedTuple):
 NO_CORNERS = Corners(None, None)
 
 
-def cofactor(matrix: np.ndarray) -> np.ndarray:
-    """The cofactor matrix of ``matrix``'s 3x3 block (Python floats): the inverse transpose
-    times the determinant, so it maps normals like the inverse transpose does (up to a scale and
-    a sign) and exists for any matrix."""
-    (a, b, c, *_), (d, e, f, *_), (g, h, i, *_) = np.asarray(matrix, np.float64)[:3].tolist()
-    return np.array(
-        [
-            [e * i - f * h, f * g - d * i, d * h - e * g],
-            [c * h - b * i, a * i - c * g, b * g - a * h],
-            [b * f - c * e, c * d - a * f, a * e - b * d],
-        ]
-    )
-
-
 def moved_normals(normals: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    """Unit normals carried by the affine ``matrix`` (zeros where it flattens them), element by
-    element so every CPU gets the same bits."""
-    m = cofactor(matrix)
-    moved = normals[:, 0:1] * m[:, 0] + normals[:, 1:2] * m[:, 1] + normals[:, 2:3] * m[:, 2]
+    """Unit normals carried by the affine ``matrix`` (``vertex_normals.transformed``), zeros
+    where it flattens them."""
+    moved = vertex_normals.transformed(normals, matrix)
     length = np.sqrt(moved[:, 0] ** 2 + moved[:, 1] ** 2 + moved[:, 2] ** 2)
     ok = length > 0.0
     out = np.zeros_like(moved)

@@ -299,9 +299,7 @@ class _Writer(MaterialsWriter, EmittersWriter):
         normals = self.state.meshes[self.state.nodes[mesh.node].mesh].normals
         if normals is None:
             return None
-        matrix = self.state.world_transform(mesh.node)
-        # The cofactor matrix is det times the inverse transpose; a mirror's faces are reversed.
-        return moved_normals(normals, matrix) * (1.0 if portable.det3(matrix) > 0.0 else -1.0)
+        return moved_normals(normals, self.state.world_transform(mesh.node))
 
     def _mitsuba_uvs(self, mesh: WorldMesh) -> np.ndarray | None:
         """The UVs Mitsuba's ``bitmap`` needs for a textured mesh (None without a texture).
