@@ -276,3 +276,15 @@ def test_cost_heat_map(cornell):
 def test_lens_dimension_is_shared():
     """The surface kernels place the lens sample where the path vertex code reserves it."""
     assert surface_integrators.LENS_DIM == vertex.LENS_DIM == vertex.DIMS_PER_VERTEX
+
+
+@pytest.mark.parametrize("detail", ["textures", "shading_normals", "normal_maps"])
+def test_surface_detail_runs_the_material_build(detail):
+    """Textures, vertex normals and normal maps are compiled only into the build with the
+    material dispatch: a Lambertian plan that needs one runs that build, one without runs the
+    lean build."""
+    from tracer.integrators.flags import AREA_LIGHTS, EFFECTS
+
+    lean = AREA_LIGHTS | LIGHT_SAMPLES | SHADOWS
+    assert integrator.build_for(lean) == (False, False)
+    assert integrator.build_for(lean | EFFECTS[detail]) == (True, False)

@@ -58,30 +58,42 @@ LAYERS = {
 """Each AOV layer's columns."""
 
 
-@jit_inline
-def vertex_aov(s, d, k, j, b0, b1, b2, materials, plan):
-    """What a path vertex gives the AOVs: ``(final, colour, normal, point)``. A non-delta
-    vertex is ``final``: ``colour`` is its albedo, ``normal`` its shading normal (the geometric
-    one without the plan's ``SHADING_NORMALS``) facing the ray; a delta vertex passes the colour
-    that tints what lies beyond it. ``point`` is the render-space hit point."""
-    mat = material_of(s, k, j)
-    _, _, _, p, ng = surface(s, k, j, b0, b1, b2)
-    front = dot(ng, d) < 0.0  # the geometric normal decides the side; ns lies on ng's
-    if plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
-        _, ng = surface_normal(s, mat, k, j, b0, b1, b2, ng, plan)
-    n = ng if front else (-ng[0], -ng[1], -ng[2])
-    albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
-              np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
-    if plan & flags.TEXTURES:
-        albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
-    final = True
-    if materials and plan & flags.MATERIAL_EFFECTS:
-        kind = s.mat_kind[mat]
-        if kind != DIFFUSE:
-            param = s.mat_param[mat]
-            final = not bsdf_is_delta(kind, param)
-            albedo = bsdf_albedo(kind, albedo, param)
-    return final, albedo, n, p
+def aov_recorder(materials: bool):
+    """:func:`record` with or without the material dispatch, the textures and the shading
+    normals (``materials``, as in ``tracer.integrators.vertex.vertex_shader``): a constant of the
+    returned function, so a build without them never compiles their look-ups."""
+
+    def record(s, d, k, j, b0, b1, b2, plan):
+        """What a path vertex gives the AOVs: ``(final, colour, normal, point)``. A non-delta
+        vertex is ``final``: ``colour`` is its albedo, ``normal`` its shading normal (the
+        geometric one without the plan's ``SHADING_NORMALS``) facing the ray; a delta vertex
+        passes the colour that tints what lies beyond it. ``point`` is the render-space hit
+        point."""
+        mat = material_of(s, k, j)
+        _, _, _, p, ng = surface(s, k, j, b0, b1, b2)
+        front = dot(ng, d) < 0.0  # the geometric normal decides the side; ns lies on ng's
+        if materials and plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
+            _, ng = surface_normal(s, mat, k, j, b0, b1, b2, ng, plan)
+        n = ng if front else (-ng[0], -ng[1], -ng[2])
+        albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
+                  np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
+        if materials and plan & flags.TEXTURES:
+            albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
+        final = True
+        if materials and plan & flags.MATERIAL_EFFECTS:
+            kind = s.mat_kind[mat]
+            if kind != DIFFUSE:
+                param = s.mat_param[mat]
+                final = not bsdf_is_delta(kind, param)
+                albedo = bsdf_albedo(kind, albedo, param)
+        return final, albedo, n, p
+
+    record.__qualname__ = f"record_{'m' if materials else 'l'}"
+    return jit_inline(record)
+
+
+RECORDERS = {m: aov_recorder(m) for m in (False, True)}
+"""``record`` for each value of the kernels' ``materials`` build switch."""
 
 
 def world_positions(aov: np.ndarray, origin: np.ndarray) -> None:

@@ -87,6 +87,9 @@ EFFECTS = {
 ALL = sum(EFFECTS.values())
 MATERIAL_EFFECTS = SPECULAR | GLOSSY | REFRACTION | ABSORPTION
 """Any of these needs the general BSDF dispatch; without them every surface is Lambertian."""
+SURFACE_DETAIL = TEXTURES | SHADING_NORMALS | NORMAL_MAPS
+"""Any of these needs the kernels' build with the material dispatch too, which alone compiles the
+look-ups of textures, vertex normals and normal maps (``tracer.integrators.path.build_for``)."""
 
 LIGHT_KIND_EFFECTS = {
     lights.TRIANGLE: AREA_LIGHTS,

@@ -26,7 +26,6 @@ import numpy as np
 from tracer.compiled.arrays import borrow_scene
 from tracer.geometry.scene_intersect import material_of, object_of, scene_closest, scene_occluded
 from tracer.integrators import aov, flags
-from tracer.integrators.aov import vertex_aov
 from tracer.integrators.vertex import SHADERS, camera_path
 from tracer.kernel.borrow import borrowed
 from tracer.kernel.jit import jit, with_globals
@@ -38,13 +37,14 @@ PIXEL_BLOCK = 32
 
 
 def path_kernel(materials: bool, lights: bool):
-    """The path kernel compiled with or without the material dispatch (``materials``) and
-    the point, spot, sun and sky code (``lights``).
+    """The path kernel compiled with or without the material dispatch and the surface detail
+    (``materials``: BSDFs, textures, vertex normals, normal maps) and the point, spot, sun and
+    sky code (``lights``).
 
     Both pick the build of the vertex shader the kernel inlines (``vertex.SHADERS``), where
     they are constants: the code they switch off is removed before type inference, so a scene
-    of Lambertian surfaces and emissive triangles (the Cornell box) never compiles the BSDFs
-    or the other lights.
+    of flat, untextured Lambertian surfaces and emissive triangles (the Cornell box) never
+    compiles the BSDFs, the surface detail or the other lights.
     Every other effect of the plan is a runtime flag. ``docs/effects.md`` measures this
     against one kernel for every plan and against one kernel per plan.
     """
@@ -134,8 +134,8 @@ def path_kernel(materials: bool, lights: bool):
                         if aov_open:
                             aov_open = k >= 0
                         if aov_open:
-                            final, colour, n, p = vertex_aov(
-                                s, d, k, j, b0, b1, b2, materials, plan
+                            final, colour, n, p = record_aov(  # noqa: F821 (with_globals binds it)
+                                s, d, k, j, b0, b1, b2, plan
                             )
                             if state[5] == 1:  # the camera ray's hit
                                 a_depth += t
@@ -185,7 +185,11 @@ def path_kernel(materials: bool, lights: bool):
                     out_aov[row, x, aov.MATERIAL_ID] = a_material
 
     trace_pixels.__qualname__ = f"trace_pixels_{'m' if materials else 'l'}{'o' if lights else 't'}"
-    return jit(with_globals(trace_pixels, shade=SHADERS[(materials, lights)]))
+    return jit(
+        with_globals(
+            trace_pixels, shade=SHADERS[(materials, lights)], record_aov=aov.RECORDERS[materials]
+        )
+    )
 
 
 KERNELS = {(m, o): path_kernel(m, o) for m in (False, True) for o in (False, True)}
@@ -194,9 +198,9 @@ KERNELS = {(m, o): path_kernel(m, o) for m in (False, True) for o in (False, Tru
 
 def build_for(plan: int) -> tuple[bool, bool]:
     """The build ``(materials, lights)`` a plan needs: with the material dispatch if it has a
-    material effect (or the ``flags.MATERIAL_BUILD`` switch), with the point/spot/sun/sky
-    code if it has one of those lights."""
-    materials = (plan & (flags.MATERIAL_EFFECTS | flags.MATERIAL_BUILD)) != 0
+    material effect or surface detail (or the ``flags.MATERIAL_BUILD`` switch), with the
+    point/spot/sun/sky code if it has one of those lights."""
+    materials = (plan & (flags.MATERIAL_EFFECTS | flags.SURFACE_DETAIL | flags.MATERIAL_BUILD)) != 0
     lights = (plan & (flags.POINT_LIGHTS | flags.SUN | flags.SKY)) != 0
     return materials, lights
 

@@ -118,9 +118,10 @@ def triangle_shadow_ray(s, k, p_o, n_o, dist, ng, wi, lk, q_o, q_err, nl_o, n_l)
 
 
 def vertex_shader(materials: bool, lights: bool):
-    """:func:`shade` with or without the material dispatch (``materials``) and the point, spot,
-    sun and sky code (``lights``): constants of the returned function, so the code they switch
-    off is never compiled into a kernel that inlines it."""
+    """:func:`shade` with or without the material dispatch and the surface detail (``materials``:
+    textures, shading normals, normal maps) and the point, spot, sun and sky code (``lights``):
+    constants of the returned function, so the code they switch off is never compiled into a
+    kernel that inlines it."""
 
     def shade(s, key, d, k, j, t, b0, b1, b2, state, mode, plan, max_depth, rr_depth,
               shadow_t_max):  # fmt: skip
@@ -168,13 +169,13 @@ def vertex_shader(materials: bool, lights: bool):
         # ``ns``; the geometric ``n`` keeps deciding sides.
         smooth = False
         ns = n
-        if plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
+        if materials and plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
             smooth, ns = surface_normal(s, mat, k, j, b0, b1, b2, ng, plan)
             ns = ns if front else (-ns[0], -ns[1], -ns[2])
             if smooth and plan & flags.NORMAL_BENDING:
                 ns = bent_normal(ns, n, wo)
         # Unbent, a viewer below the shading normal sees no scattered light (Mitsuba's rule).
-        dark = smooth and dot(wo, ns) <= 0.0
+        dark = materials and smooth and dot(wo, ns) <= 0.0
 
         # Absorb along a segment inside a dielectric (Beer-Lambert).
         if materials and plan & flags.ABSORPTION and not front:
@@ -206,7 +207,7 @@ def vertex_shader(materials: bool, lights: bool):
         dist = offset_distance(s, k, p_o, err_o, n_o)
         albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
                   np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
-        if plan & flags.TEXTURES:
+        if materials and plan & flags.TEXTURES:
             albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
         kind = DIFFUSE
         param = NO_PARAM
@@ -236,7 +237,7 @@ def vertex_shader(materials: bool, lights: bool):
             # The BSDF toward it: f cos, and its density for MIS.
             f = (0.0, 0.0, 0.0)
             p_bsdf = 0.0
-            if ok and smooth and geometric_side(n, wo, wi) != 1:
+            if materials and ok and smooth and geometric_side(n, wo, wi) != 1:
                 ok = False  # behind the geometric surface: no light leaks through it
             if ok:
                 if materials and kind != DIFFUSE:
@@ -245,7 +246,7 @@ def vertex_shader(materials: bool, lights: bool):
                     f = diffuse_eval(albedo, ns, wi)
                     if mis and not delta_l:
                         p_bsdf = diffuse_pdf(ns, wi)
-                if smooth and plan & flags.SHADOW_TERMINATOR:
+                if materials and smooth and plan & flags.SHADOW_TERMINATOR:
                     g = terminator(ns, n, wi)
                     f = (f[0] * g, f[1] * g, f[2] * g)
             if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
@@ -284,7 +285,7 @@ def vertex_shader(materials: bool, lights: bool):
         else:
             wi, weight, pdf = diffuse_sample(albedo, ns, u1, u2)
             delta_prev = False
-        if smooth and pdf > 0.0:
+        if materials and smooth and pdf > 0.0:
             # A reflection must stay on the viewer's side of the geometric surface and a
             # refraction cross it; a sample the shading normal sends the other way is lost.
             reflected = dot(wi, ns) * dot(wo, ns) > 0.0
