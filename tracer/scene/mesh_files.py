@@ -20,6 +20,7 @@ from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
 from tracer.scene import gltf_features, vertex_normals
+from tracer.scene.gltf_cameras import camera_nodes
 from tracer.scene.gltf_texture_transform import material_uv_matrix, transformed_uvs
 from tracer.scene.model import Mesh, frozen_array, make_mesh, placed
 from tracer.shading.textures import srgb_to_linear, texture_from_image
@@ -37,7 +38,12 @@ MIN_ATTENUATION = 1e-6
 
 
 def load_trimesh(path: Path):
-    """Whatever trimesh makes of ``path`` (a Trimesh or a Scene); SceneError if it cannot."""
+    """Whatever trimesh makes of ``path`` (a Trimesh or a Scene); SceneError if it cannot. A
+    glTF file's cameras are checked first: trimesh reads them too, and fails obscurely on a
+    bad one."""
+    document = gltf_features.gltf_json(path)
+    if document is not None:
+        camera_nodes(document, path.name)
     logging.getLogger("trimesh").setLevel(logging.ERROR)
     try:
         return trimesh.load(str(path), process=False)
