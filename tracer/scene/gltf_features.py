@@ -141,7 +141,8 @@ def used_features(document: dict) -> set[str]:
             used.add("transmission")
         if texture_transform.transforms_differ(material):
             used.add("KHR_texture_transform")
-        unique = isinstance(material.get("name"), str) and names.count(material["name"]) == 1
+        name = material.get("name")
+        unique = isinstance(name, str) and name != "" and names.count(name) == 1
         if not unique and texture_transform.has_transform(material):
             used.add("unnamed transform")
         sampled = texture_transform.sampled_infos(material).values()
