@@ -73,7 +73,7 @@ def sphere() -> trimesh.Trimesh:
             baseColorFactor=[200, 30, 25, 255],
             metallicFactor=0.0,
             roughnessFactor=0.3,
-        )  # fmt: skip
+        )
     )
     return mesh
 
@@ -86,7 +86,7 @@ def block() -> trimesh.Trimesh:
             baseColorFactor=[20, 20, 20, 255],
             metallicFactor=0.0,
             emissiveFactor=[1.0, 0.6, 0.2],
-        )  # fmt: skip
+        )
     )
     return mesh
 
