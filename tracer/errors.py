@@ -17,11 +17,21 @@ class SceneError(TilerenderError, ValueError):
     """A scene, mesh or setting that cannot be rendered; ``str()`` is a one-line explanation."""
 
 
+UNNAMED_TAGS = {"camera": {"view", "file"}}
+"""Union tags a location leaves out: a camera's kind is told by its keys, it has no ``type``."""
+
+
 def format_validation_error(error: pydantic.ValidationError) -> str:
     """One line naming the first problem (and how many more there are)."""
     errors = error.errors()
     first = errors[0]
-    parts = [str(p) for p in first["loc"] if not str(p).startswith(("tagged-union[", "function-"))]
+    loc = [str(p) for p in first["loc"]]
+    parts = [
+        p
+        for i, p in enumerate(loc)
+        if not p.startswith(("tagged-union[", "function-"))
+        and not (i > 0 and p in UNNAMED_TAGS.get(loc[i - 1], ()))
+    ]
     where = ".".join(parts) or "scene"
     message = first["msg"]
     if first["type"] == "extra_forbidden":

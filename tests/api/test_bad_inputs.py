@@ -15,6 +15,7 @@ from tests.api.conftest import (
     wait_job,
     zip_bytes,
 )
+from tests.gltf_files import add_lights, add_node, light_node, write_gltf
 from tests.helpers import tiny_scene
 
 OBJ = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
@@ -645,3 +646,18 @@ def test_upload_errors_name_no_server_path(client):
         r = client.post("/v1/scenes", files=files)
         check(r, 422, words)
         assert str(data_dir) not in r.text and str(data_dir.resolve()) not in r.text, r.text
+
+
+@pytest.mark.parametrize(
+    "edit,words",
+    [
+        (lambda tree: tree.update(cameras=[]) or add_node(tree, {"camera": 0}), "camera 0"),
+        (lambda tree: add_lights(tree, [{"type": "area"}]) or add_node(tree, light_node(0)),
+         "unknown type 'area'"),
+    ],
+)  # fmt: skip
+def test_a_gltf_with_a_bad_camera_or_light_is_refused(client, tmp_path, edit, words):
+    """A glTF upload whose camera or light is malformed is answered 422 with the loader's
+    message, not a 500."""
+    gltf = write_gltf(tmp_path / "bad.gltf", edit).read_bytes()
+    check(client.post("/v1/scenes", files={"mesh": ("bad.gltf", gltf)}), 422, words)

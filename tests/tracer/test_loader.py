@@ -32,7 +32,13 @@ from tracer.compiled.zero_area import zero_area_mask
 from tracer.errors import SceneError
 from tracer.render import render_lines
 from tracer.scene import format as fmt
-from tracer.scene.loader import DEFAULT_LIGHT, MAX_SCENE_FILE_BYTES, framing_camera, load_scene
+from tracer.scene.loader import (
+    DEFAULT_LIGHT,
+    MAX_SCENE_FILE_BYTES,
+    framing_camera,
+    load_scene,
+    load_warnings,
+)
 from tracer.shading.camera import camera_array, primary_ray
 
 
@@ -73,7 +79,7 @@ def quick_render(scene, width=8, height=6, spp=1) -> np.ndarray:
 
 @pytest.mark.parametrize(
     "path",
-    sorted(SCENES.glob("*/scene.json")) + [GLTF_BOX],
+    sorted(SCENES.glob("*/scene.json")) + sorted(SCENES.glob("*/*.gltf")),
     ids=lambda p: p.parent.name,
 )
 def test_sample_scenes_load(path):
@@ -567,6 +573,25 @@ def test_gltf_alone_is_a_scene():
     assert max(light.emission) > 0 and light.two_sided is False
     assert light_faces(data, 0.5 * (lo + hi)).all()
     assert quick_render(compile_scene(data), 16, 12, spp=4).mean() > 0.01
+
+
+def test_the_gltf_features_sample_takes_the_files_camera_and_lights():
+    """scenes/gltf-features: the file's camera and its spot, point and directional lights
+    (no default light), smooth normals on the sphere, the floor's UVs tiled by its texture
+    transform; the normal map's approximation is its one warning."""
+    path = SCENES / "gltf-features" / "gltf-features.gltf"
+    data = load_scene(path)
+    assert [light.type for light in data.lights] == ["spot", "point", "sun"]
+    assert DEFAULT_LIGHT not in data.materials
+    assert data.camera.position == (0.0, 2.2, 5.2) and (data.camera.width, data.camera.height) == (
+        640,
+        480,
+    )
+    meshes = {key.rsplit(":", 1)[-1]: mesh for key, mesh in data.meshes.items()}
+    assert meshes["sphere"].normals is not None
+    assert np.ptp(meshes["floor"].uvs, axis=0).max() > 4.0  # scale 4, turned by 0.3 rad
+    (warning,) = load_warnings(path)
+    assert "normalTexture approximated" in warning
 
 
 def test_emissive_gltf_gets_no_default_light(tmp_path):

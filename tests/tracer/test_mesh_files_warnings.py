@@ -85,18 +85,22 @@ EVERYTHING = {
                        "EXT_mesh_gpu_instancing"],
     "skins": [{"joints": [0]}],
     "animations": [{"channels": [], "samplers": []}],
-    "cameras": [{"type": "perspective", "perspective": {"yfov": 1.0, "znear": 0.1}}],
+    "cameras": [{"type": "perspective", "perspective": {"yfov": 1.0, "znear": 0.1}},
+                {"type": "orthographic"}],
+    "extensions": {"KHR_lights_punctual": {"lights": [{"type": "point", "range": 5}]}},
     "accessors": [{"count": 3, "sparse": {"count": 1}}],
     "samplers": [{"wrapS": 33071, "magFilter": 9728}],
     "meshes": [{"primitives": [{
-        "attributes": {"POSITION": 0, "NORMAL": 1, "TANGENT": 2, "TEXCOORD_1": 3, "COLOR_0": 4},
+        "attributes": {"POSITION": 0, "NORMAL": 1, "TANGENT": 2, "TEXCOORD_0": 3, "COLOR_0": 4},
         "targets": [{"POSITION": 5}],
         "extensions": {"KHR_draco_mesh_compression": {}},
     }]}],
     "materials": [{
-        "normalTexture": {"index": 0}, "occlusionTexture": {"index": 0},
+        "normalTexture": {"index": 0, "texCoord": 1}, "occlusionTexture": {"index": 0},
         "emissiveTexture": {"index": 0}, "alphaMode": "BLEND",
-        "pbrMetallicRoughness": {"metallicFactor": 0.3, "metallicRoughnessTexture": {"index": 0}},
+        "pbrMetallicRoughness": {"metallicFactor": 0.3, "metallicRoughnessTexture": {"index": 0},
+                                 "baseColorTexture": {"index": 0, "extensions": {
+                                     "KHR_texture_transform": {"scale": [2, 2]}}}},
         "extensions": {"KHR_materials_transmission": {"transmissionFactor": 0.7},
                        "KHR_materials_clearcoat": {}, "KHR_materials_sheen": {},
                        "KHR_materials_specular": {}, "KHR_materials_ior": {"ior": 1.4},
@@ -117,25 +121,41 @@ def test_every_feature_warns_once_in_the_tables_order():
         "KHR_materials_specular ignored",
     ]  # fmt: skip
     expected.remove(gltf_features.GEOMETRY_WARNINGS["EXT_meshopt_compression"])
-    assert warnings == expected
+    taken = [gltf_features.GEOMETRY_WARNINGS[key] for key in ("cameras", "KHR_lights_punctual")]
+    assert warnings == [w for w in expected if w not in taken]  # the file's lights and camera
     geometry_only = feature_warnings(EVERYTHING, materials=False)
-    assert geometry_only == [w for w in expected if w in gltf_features.GEOMETRY_WARNINGS.values()]
-    assert not used_features(EVERYTHING) & gltf_features.READ_EXTENSIONS
+    assert geometry_only == [w for w in warnings if w in gltf_features.GEOMETRY_WARNINGS.values()]
+    not_taken = [gltf_features.GEOMETRY_WARNINGS[key] for key in ("orthographic", "range")]
+    assert feature_warnings(EVERYTHING, lights=False, cameras=False) == [
+        w for w in expected if w not in not_taken
+    ]
+    assert not (used_features(EVERYTHING) - {"KHR_lights_punctual", "KHR_texture_transform"}) & (
+        gltf_features.READ_EXTENSIONS
+    )
 
 
 def test_what_is_read_does_not_warn():
-    """Factors of 0 or 1, glass at transmission 1, OPAQUE alpha, REPEAT wrapping and the
-    extensions the mapping reads give no warning."""
+    """Factors of 0 or 1, glass at transmission 1, OPAQUE alpha, REPEAT wrapping, the
+    extensions the mapping reads, lights without a range, perspective cameras and one texture
+    transform per named material (with a texCoord override back to 0) give no warning (the
+    normal map's own approximation aside)."""
+    transform = {"KHR_texture_transform": {"offset": [0.5, 0], "texCoord": 0}}
     document = {
-        "extensionsUsed": ["KHR_materials_ior", "KHR_materials_emissive_strength"],
+        "extensionsUsed": ["KHR_materials_ior", "KHR_materials_emissive_strength",
+                           "KHR_lights_punctual", "KHR_texture_transform"],
+        "extensions": {"KHR_lights_punctual": {"lights": [{"type": "spot"}]}},
+        "cameras": [{"type": "perspective", "perspective": {"yfov": 1.0, "znear": 0.1}}],
         "samplers": [{"wrapS": 10497, "wrapT": 10497, "magFilter": 9729}],
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1,
                                                    "TEXCOORD_0": 2}}]}],
-        "materials": [{"alphaMode": "OPAQUE", "pbrMetallicRoughness": {"metallicFactor": 0},
+        "materials": [{"name": "paint", "alphaMode": "OPAQUE",
+                       "normalTexture": {"index": 0, "texCoord": 1, "extensions": transform},
+                       "pbrMetallicRoughness": {"metallicFactor": 0, "baseColorTexture": {
+                           "index": 0, "extensions": transform}},
                        "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1},
                                       "KHR_materials_volume": {"attenuationDistance": 1}}}],
     }  # fmt: skip
-    assert feature_warnings(document) == []
+    assert feature_warnings(document) == [NORMAL_TEXTURE]  # MikkTSpace: not its transform
 
 
 def test_the_feature_table_names_every_warned_feature():

@@ -261,9 +261,9 @@ def test_bad_top_level(change, message):
 
 def test_unknown_nested_keys_are_refused():
     """A misspelled key at any depth is an error, located by its path (which names the kind of
-    a material, as it does a shape's)."""
+    a material, as it does a shape's, and of a camera: a view of its own or a file's)."""
     for path, where in (
-        (["camera"], ["camera"]),
+        (["camera"], ["camera", "view"]),
         (["render"], ["render"]),
         (["materials", "grey"], ["materials", "grey", "diffuse"]),
         (["objects", 1, "transform"], ["objects", 1, "transform"]),

@@ -8,7 +8,7 @@ typo or a NaN is an error at load time rather than a surprise in the image.
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from tracer import config
 from tracer.integrators.names import (
@@ -91,6 +91,7 @@ __all__ = [
     "Direction",
     "EffectName",
     "EnvironmentSky",
+    "FileCamera",
     "FilePath",
     "Finite",
     "GradientSky",
@@ -114,6 +115,7 @@ __all__ = [
     "Reflectance",
     "RenderSettings",
     "Roughness",
+    "SceneCamera",
     "SceneFile",
     "SceneObject",
     "Shape",
@@ -156,6 +158,11 @@ class MeshFile(Strict):
         description="Degrees: for meshes without normals in the file, faces meeting at an edge "
         "at less than this angle are shaded smooth across it, sharper edges stay creased "
         "(default: such meshes shade flat)",
+    )
+    lights: bool = Field(
+        default=False,
+        description="Add the glTF file's KHR_lights_punctual lights to the scene's, placed by "
+        "the object's transform (the object and its parents must be static)",
     )
 
     @model_validator(mode="after")
@@ -262,6 +269,47 @@ class Camera(Strict):
         if not portable.norm(portable.cross(portable.normalized(forward), self.up)) > 1e-9:
             raise ValueError("up must not be parallel to the viewing direction")
         return self
+
+
+class FileCamera(Strict):
+    """The view of a perspective camera in the glTF file of an object, placed by the object's
+    transform; the image size and lens are the scene's (docs/scene-format.md)."""
+
+    from_object: Name = Field(description="Name of a static object whose shape is a glTF file")
+    name: Name | None = Field(
+        default=None,
+        description="The file's camera, by its name or its node's (default: the first "
+        "perspective camera of the file's scene)",
+    )
+    width: int = Field(default=640, ge=1, le=config.MAX_IMAGE_SIDE)
+    height: int = Field(default=480, ge=1, le=config.MAX_IMAGE_SIDE)
+    aperture_radius: NonNegative = Field(
+        default=0.0, description="Radius of the thin lens in scene units; 0 is a pinhole"
+    )
+    focus_distance: Positive | None = Field(
+        default=None, description="Distance of the plane in focus; needed with an aperture"
+    )
+
+    @model_validator(mode="after")
+    def _check(self) -> "FileCamera":
+        if self.width * self.height > config.MAX_PIXELS:
+            raise ValueError(f"width * height must be at most {config.MAX_PIXELS} pixels")
+        if self.aperture_radius > 0.0 and self.focus_distance is None:
+            raise ValueError("an aperture needs a focus_distance (the file's camera has none)")
+        return self
+
+
+def _camera_kind(value) -> str:
+    if isinstance(value, dict):
+        return "file" if "from_object" in value else "view"
+    return "file" if isinstance(value, FileCamera) else "view"
+
+
+SceneCamera = Annotated[
+    Annotated[Camera, Tag("view")] | Annotated[FileCamera, Tag("file")],
+    Discriminator(_camera_kind),
+]
+"""A scene file's camera: a view of its own, or a glTF file's camera (``from_object``)."""
 
 
 EffectName = Literal[
@@ -395,7 +443,7 @@ class SceneFile(Strict):
     optional keyframe animation."""
 
     format: Literal["tilerender/1"] = FORMAT
-    camera: Camera = Camera()
+    camera: SceneCamera = Camera()
     render: RenderSettings = RenderSettings()
     sky: Sky = ConstantSky()
     lights: list[Light] = Field(
@@ -416,6 +464,13 @@ class SceneFile(Strict):
                 raise ValueError(
                     f"objects[{i}] uses material {obj.material!r}, which is not defined "
                     f"(defined: {known})"
+                )
+        if isinstance(self.camera, FileCamera):
+            named = [o for o in self.objects if o.name == self.camera.from_object]
+            if not named or not isinstance(named[-1].shape, MeshFile):
+                raise ValueError(
+                    f"camera.from_object: no object named {self.camera.from_object!r} has a "
+                    "mesh file for its shape"
                 )
         return self
 

@@ -8,26 +8,33 @@ import json
 import struct
 from pathlib import Path
 
+from tracer.scene import gltf_texture_transform as texture_transform
+
 REPEAT = 10497
 """glTF's sampler wrap mode REPEAT, the only one textures use."""
 NEAREST = 9728
 
 READ_EXTENSIONS = {
+    "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
     "KHR_materials_ior",
     "KHR_materials_transmission",
     "KHR_materials_volume",
+    "KHR_texture_transform",
 }
-"""Extensions the material mapping reads (docs/materials.md)."""
+"""Extensions the loader reads (docs/materials.md): only what it approximates of them warns."""
 
 GEOMETRY_WARNINGS = {
     "skins": "skins ignored: skinned meshes render as stored, not posed by their joints",
     "targets": "morph targets ignored: meshes render in their base shape",
     "animations": "animations ignored: the file renders at rest (a scene's animation section "
     "moves objects)",
-    "cameras": "cameras ignored: the scene's camera (or one framing the model) is used",
+    "cameras": "cameras not used: the scene's own camera is (camera.from_object takes the file's)",
+    "orthographic": "orthographic cameras ignored: only perspective cameras are supported",
     "sparse": "sparse accessors ignored: their substituted values are not applied",
-    "KHR_lights_punctual": "KHR_lights_punctual ignored: add lights in the scene",
+    "KHR_lights_punctual": "KHR_lights_punctual not used: the object does not ask for the "
+    'file\'s lights ("lights": true)',
+    "range": "light range ignored: lights fall off with the inverse square of the distance",
     "KHR_draco_mesh_compression": "KHR_draco_mesh_compression not decoded (no DracoPy): its "
     "meshes load as zeros",
     "EXT_meshopt_compression": "EXT_meshopt_compression not decoded: its meshes do not load "
@@ -35,7 +42,8 @@ GEOMETRY_WARNINGS = {
 }
 MATERIAL_WARNINGS = {
     "TANGENT": "TANGENT ignored: normal maps use each triangle's own tangent frame from its UVs",
-    "TEXCOORD_1": "UV sets after TEXCOORD_0 ignored: every texture uses TEXCOORD_0",
+    "TEXCOORD_1": "UV sets after TEXCOORD_0 ignored: every texture uses TEXCOORD_0, whatever "
+    "its texCoord",
     "COLOR_0": "vertex colours ignored: surfaces use their material's base colour",
     "normalTexture": "normalTexture approximated: a tangent frame per triangle from its UVs, "
     "not MikkTSpace",
@@ -50,7 +58,10 @@ MATERIAL_WARNINGS = {
     "transmissionFactor of 0.5 or more (no transmissionTexture), else opaque",
     "KHR_materials_pbrSpecularGlossiness": "KHR_materials_pbrSpecularGlossiness approximated: "
     "converted to metallic-roughness by trimesh",
-    "KHR_texture_transform": "KHR_texture_transform ignored: textures use their UVs as stored",
+    "KHR_texture_transform": "KHR_texture_transform approximated: where a material's "
+    "baseColorTexture and normalTexture transforms differ, both take the baseColorTexture's",
+    "unnamed transform": "KHR_texture_transform ignored on materials without a name of their "
+    "own (materials are matched to the file's JSON by name)",
     "wrap": "texture sampler wrap modes ignored: every texture repeats",
     "filter": "texture sampler NEAREST filter ignored: textures are bilinear",
 }
@@ -93,17 +104,24 @@ def used_features(document: dict) -> set[str]:
     """The keys of ``GEOMETRY_WARNINGS`` and ``MATERIAL_WARNINGS`` the document uses, and the
     names of other extensions it uses."""
     used = {key for key in ("skins", "animations", "cameras") if _dicts(document.get(key))}
+    used |= {"orthographic" for c in _dicts(document.get("cameras"))
+             if c.get("type") == "orthographic"}  # fmt: skip
     used |= {"sparse" for a in _dicts(document.get("accessors")) if "sparse" in a}
+    named: set[str] = set()  # extensions by name
+    extensions = document.get("extensions", {}) or {}
+    lights = extensions.get("KHR_lights_punctual", {}) if isinstance(extensions, dict) else {}
+    if isinstance(lights, dict) and _dicts(lights.get("lights")):
+        used.add("KHR_lights_punctual")
+        used |= {"range" for light in _dicts(lights.get("lights")) if "range" in light}
     for primitive in _primitives(document):
         attributes = primitive.get("attributes", {})
         if isinstance(attributes, dict):
             used |= {"TANGENT"} & set(attributes)
             used |= {"COLOR_0" for name in attributes if name.startswith("COLOR_")}
-            used |= {"TEXCOORD_1" for name in attributes if name.startswith("TEXCOORD_")
-                     and name != "TEXCOORD_0"}  # fmt: skip
         if primitive.get("targets"):
             used.add("targets")
-        used |= set(primitive.get("extensions", {}) or {})
+        named |= set(primitive.get("extensions", {}) or {})
+    names = [m.get("name") for m in _dicts(document.get("materials"))]
     for material in _dicts(document.get("materials")):
         used |= {key for key in ("normalTexture", "occlusionTexture", "emissiveTexture")
                  if key in material}  # fmt: skip
@@ -116,29 +134,41 @@ def used_features(document: dict) -> set[str]:
         if material.get("alphaMode", "OPAQUE") in ("MASK", "BLEND"):
             used.add("alphaMode")
         extensions = material.get("extensions", {}) or {}
-        used |= set(extensions)
+        named |= set(extensions)
         transmission = extensions.get("KHR_materials_transmission", {}) or {}
         factor = transmission.get("transmissionFactor", 0.0)
         if "transmissionTexture" in transmission or factor not in (0, 0.0, 1, 1.0):
             used.add("transmission")
-        if '"KHR_texture_transform"' in json.dumps(material):
+        if texture_transform.transforms_differ(material):
             used.add("KHR_texture_transform")
+        name = material.get("name")
+        unique = isinstance(name, str) and name != "" and names.count(name) == 1
+        if not unique and texture_transform.has_transform(material):
+            used.add("unnamed transform")
+        sampled = texture_transform.sampled_infos(material).values()
+        if any(texture_transform.tex_coord(info) != 0 for info in sampled):
+            used.add("TEXCOORD_1")
     for sampler in _dicts(document.get("samplers")):
         if sampler.get("wrapS", REPEAT) != REPEAT or sampler.get("wrapT", REPEAT) != REPEAT:
             used.add("wrap")
         if sampler.get("magFilter") == NEAREST:
             used.add("filter")
-    extensions = document.get("extensionsUsed", [])
-    if isinstance(extensions, list):
-        used |= {name for name in extensions if isinstance(name, str)}
-    return used - READ_EXTENSIONS
+    listed = document.get("extensionsUsed", [])
+    if isinstance(listed, list):
+        named |= {name for name in listed if isinstance(name, str)}
+    return used | (named - READ_EXTENSIONS)
 
 
-def feature_warnings(document: dict, materials: bool = True) -> list[str]:
+def feature_warnings(
+    document: dict, materials: bool = True, lights: bool = True, cameras: bool = True
+) -> list[str]:
     """One warning per feature of the file that is ignored or approximated, in the table's
     order, then other extensions by name; with ``materials`` false (the scene gives the
-    object its own material) only those about geometry and the file's scene."""
+    object its own material) only those about geometry and the file's scene. ``lights`` and
+    ``cameras`` say whether the file's lights and cameras are taken (a file alone: yes)."""
     used = used_features(document)
+    used -= {"KHR_lights_punctual"} if lights else {"range"}
+    used -= {"cameras"} if cameras else {"orthographic"}
     warnings = [text for key, text in GEOMETRY_WARNINGS.items() if key in used]
     if materials:
         warnings += [text for key, text in MATERIAL_WARNINGS.items() if key in used]

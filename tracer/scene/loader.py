@@ -1,10 +1,10 @@
 """Read a scene from disk into a :class:`tracer.scene.model.SceneState`.
 
 Accepted inputs: a ``tilerender/1`` JSON scene, or a single mesh file (glTF, GLB, OBJ, PLY, STL),
-which becomes a scene with a camera framing its bounds and, if nothing in it emits, a default
-area light. All mesh I/O goes through trimesh (``tracer.scene.mesh_files``), images through Pillow
-(``tracer.shading.textures``). Every failure raises :class:`SceneError` with a
-one-line message; nothing is half-loaded.
+which becomes a scene with the file's camera or one framing its bounds, the file's lights and,
+if nothing in it emits or lights, a default area light. All mesh I/O goes through trimesh
+(``tracer.scene.mesh_files``), images through Pillow (``tracer.shading.textures``). Every failure
+raises :class:`SceneError` with a one-line message; nothing is half-loaded.
 """
 
 import json
@@ -28,7 +28,10 @@ from tracer.scene.animation import (
 )
 from tracer.scene.checks import check_textures
 from tracer.scene.environment import EnvironmentMap, read_environment_image
+from tracer.scene.gltf_cameras import bare_file_camera
 from tracer.scene.gltf_features import feature_warnings, gltf_json
+from tracer.scene.gltf_lights import file_lights
+from tracer.scene.gltf_placement import object_camera, object_lights
 from tracer.scene.mesh_files import FileModel, load_file_model, load_mesh_file, shading_key
 from tracer.scene.model import (
     Animation,
@@ -161,24 +164,35 @@ def load_scene(path: str | Path) -> SceneState:
 def load_warnings(path: str | Path) -> list[str]:
     """What loading ``path`` (a scene :func:`load_scene` accepts) ignores or approximates of
     its glTF files, one line per feature and file (``tracer.scene.gltf_features``): about
-    materials only for files whose own materials are used."""
+    materials only for files whose own materials are used, about lights and cameras as the
+    scene takes them (a file alone takes both)."""
     path = Path(path)
-    files: dict[str, tuple[Path, bool]] = {}  # reference -> (file, its own materials used)
+    files: dict[str, Path] = {}
+    taken: dict[str, set[str]] = {}  # reference -> what the scene takes of the file
     if path.suffix.lower() in MESH_SUFFIXES:
-        files[path.name] = (path, True)
+        files[path.name] = path
+        taken[path.name] = {"materials", "lights", "camera"}
     else:
         scene = fmt.SceneFile.model_validate_json(path.read_text(encoding="utf-8"))
+        viewer = getattr(scene.camera, "from_object", None)
         for obj in scene.objects:
             if isinstance(obj.shape, fmt.MeshFile):
                 reference = obj.shape.path
-                own = files[reference][1] if reference in files else False
-                target = resolve_reference(path.parent, reference)
-                files[reference] = (target, own or obj.material is None)
+                if reference not in files:
+                    files[reference] = resolve_reference(path.parent, reference)
+                uses = taken.setdefault(reference, set())
+                uses |= {"materials"} if obj.material is None else set()
+                uses |= {"lights"} if obj.shape.lights else set()
+                uses |= {"camera"} if obj.name and obj.name == viewer else set()
     warnings = []
-    for reference, (file, own_materials) in files.items():
+    for reference, file in files.items():
         document = gltf_json(file)
         if document is not None:
-            warnings += [f"{reference}: {w}" for w in feature_warnings(document, own_materials)]
+            uses = taken[reference]
+            found = feature_warnings(
+                document, *(k in uses for k in ("materials", "lights", "camera"))
+            )
+            warnings += [f"{reference}: {w}" for w in found]
     return warnings
 
 
@@ -206,6 +220,9 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
     object's transform, and the camera if it is animated, are the animation's values at time 0
     (see :func:`animation_from_file`).
     """
+    if isinstance(scene.camera, fmt.FileCamera):
+        camera = object_camera(scene, scene_dir, resolve_reference)
+        scene = scene.model_copy(update={"camera": camera})
     names = {obj.name: i for i, obj in enumerate(scene.objects) if obj.name}
     animation = animation_from_file(scene)
     camera = scene.camera
@@ -286,7 +303,7 @@ def scene_from_file_model(scene: fmt.SceneFile, scene_dir: Path, source: str = "
         render=scene.render,
         sky=load_sky(scene.sky, scene_dir),
         animation=animation,
-        lights=tuple(scene.lights),
+        lights=(*scene.lights, *object_lights(scene, scene_dir, resolve_reference)),
         textures=textures,
     )
     check_textures(state)
@@ -459,9 +476,13 @@ def _check_camera_between_keys(animation: Animation, base: fmt.Camera) -> None:
 
 
 def scene_from_mesh_file(path: Path) -> SceneState:
-    """A scene made of one mesh file: its own materials and textures (``tracer.scene.mesh_files``),
-    a framing camera, a default light."""
+    """A scene made of one mesh file: its own materials and textures (``tracer.scene.mesh_files``)
+    and a glTF file's lights; its first perspective camera, else a framing one; a default light
+    when nothing emits or lights."""
     model = load_file_model(path, path.name, f"{path.name}:")
+    document = gltf_json(path)
+    lights = () if document is None else tuple(file_lights(document, path.name))
+    file_camera = None if document is None else bare_file_camera(document, path.name)
     nodes: dict[int, Node] = {}
     corners = []
     for i, (name, transform, mesh_key, material_key) in enumerate(model.parts):
@@ -475,11 +496,13 @@ def scene_from_mesh_file(path: Path) -> SceneState:
         meshes=model.meshes,
         materials=model.materials,
         nodes=nodes,
-        camera=framing_camera(lo, hi),
+        camera=file_camera or framing_camera(lo, hi),
         render=fmt.RenderSettings(),
+        lights=lights,
         textures=model.textures,
     )
-    if not any(max(getattr(m, "emission", (0.0,))) > 0.0 for m in model.materials.values()):
+    emits = any(max(getattr(m, "emission", (0.0,))) > 0.0 for m in model.materials.values())
+    if not emits and not lights:
         state = with_default_light(state, lo, hi)
     return state
 

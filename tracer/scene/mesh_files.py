@@ -1,7 +1,8 @@
-"""Mesh files (OBJ, PLY, STL, glTF, GLB) through trimesh: triangles with their UVs and shading
-normals (the file's, or smoothed by angle as the scene's ``MeshFile`` asks), and the
-file's own materials mapped onto ours (glTF metallic-roughness, OBJ/MTL diffuse colours and
-``map_Kd``), with their base-colour textures. The mapping table is in docs/materials.md.
+"""Mesh files (OBJ, PLY, STL, glTF, GLB) through trimesh: triangles with their UVs (moved by a
+glTF material's texture transform) and shading normals (the file's, or smoothed by angle as
+the scene's ``MeshFile`` asks), and the file's own materials mapped onto ours (glTF
+metallic-roughness, OBJ/MTL diffuse colours and ``map_Kd``), with their base-colour textures.
+The mapping table is in docs/materials.md.
 
 Every failure raises :class:`SceneError` with a one-line message.
 """
@@ -19,6 +20,8 @@ from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
 from tracer.scene import gltf_features, vertex_normals
+from tracer.scene.gltf_cameras import camera_nodes
+from tracer.scene.gltf_texture_transform import material_uv_matrix, transformed_uvs
 from tracer.scene.model import Mesh, frozen_array, make_mesh, placed
 from tracer.shading.textures import srgb_to_linear, texture_from_image
 
@@ -35,7 +38,12 @@ MIN_ATTENUATION = 1e-6
 
 
 def load_trimesh(path: Path):
-    """Whatever trimesh makes of ``path`` (a Trimesh or a Scene); SceneError if it cannot."""
+    """Whatever trimesh makes of ``path`` (a Trimesh or a Scene); SceneError if it cannot. A
+    glTF file's cameras are checked first: trimesh reads them too, and fails obscurely on a
+    bad one."""
+    document = gltf_features.gltf_json(path)
+    if document is not None:
+        camera_nodes(document, path.name)
     logging.getLogger("trimesh").setLevel(logging.ERROR)
     try:
         return trimesh.load(str(path), process=False)
@@ -205,11 +213,14 @@ def load_file_model(
     in_file = _normals_in_file(path)
     for part in parts:
         mesh_key = f"{mesh_prefix}{part.geometry}"
+        material = getattr(part.mesh.visual, "material", None)
         if mesh_key not in model.meshes:
             label = f"{path.name}:{part.node}"
             vertices, faces, uvs, normals = part_arrays(part, label, in_file, shape)
+            uv_matrix = mapper.uv_matrix(material)
+            if uvs is not None and uv_matrix is not None:
+                uvs = transformed_uvs(uvs, uv_matrix)
             model.meshes[mesh_key] = make_mesh(vertices, faces, label, uvs, normals)
-        material = getattr(part.mesh.visual, "material", None)
         uvs_present = model.meshes[mesh_key].uvs is not None
         material_key = mapper.key(material, uvs_present, model.materials)
         try:
@@ -253,6 +264,14 @@ class _MaterialMapper:
         materials[key] = converted
         self.keys[ident] = key
         return key
+
+    def uv_matrix(self, material) -> np.ndarray | None:
+        """The ``KHR_texture_transform`` of a glTF material (matched by name), or None."""
+        name = getattr(material, "name", None)
+        if not isinstance(material, trimesh.visual.material.PBRMaterial) or not name:
+            return None
+        where = f"{self.path.name}: material {name!r}"
+        return material_uv_matrix(self.gltf.get(name, {}), where)
 
     def texture(self, image, wrap: str = "repeat") -> fmt.Texture:
         """A texture model for a PIL image of the file (stored once under its name)."""
