@@ -659,6 +659,30 @@ def test_textured_meshes_carry_scaled_uvs_with_v_from_the_top(tmp_path):
     assert b"property float x" in header and b" s\n" not in header  # no UVs without a texture
 
 
+def test_normal_map_is_mitsubas_normalmap_with_strength_baked_in_and_its_fixes_off(tmp_path):
+    """The map's ``2 c - 1`` with its strength baked in, and Mitsuba's own fixes (flipping a
+    normal the viewer is below, Estevez et al.'s shadowing; on by default since 3.7.1) off:
+    left on, they made mitsuba/normal-map's wall 0.4% brighter than ours (docs/mitsuba.md)."""
+    state = load_scene(ROOT / "scenes" / "mitsuba" / "normal-map" / "scene.json")
+    result, root = export(tmp_path, state)
+    assert not result.model_differences()
+    names = sorted({m.material for m in state.world_meshes()})  # material-<i> in this order
+    mapped = [n for n in names if state.materials[n].normal_map is not None]
+    assert mapped == ["bumpy floor", "ridged wall"]
+    for name in mapped:
+        wrapper, _ = bsdf(root, names.index(name))
+        normalmap = wrapper.find("bsdf[@type='normalmap']")
+        assert value(normalmap, "boolean", "flip_invalid_normals") == "false"
+        assert value(normalmap, "boolean", "use_shadowing_function") == "false"
+        assert normalmap.find("bsdf").get("type") == "diffuse"
+        texture, image = bitmap_of(tmp_path, normalmap)
+        assert value(texture, "string", "wrap_mode") == "repeat"
+        normal_map = state.materials[name].normal_map
+        vector = 2.0 * state.textures[normal_map.file] / 255.0 - 1.0
+        scale = [normal_map.strength, normal_map.strength, 1.0]
+        np.testing.assert_allclose(2.0 * image - 1.0, vector * scale, atol=1e-6)
+
+
 def test_environment_map_is_upsampled_keeping_its_pixels_and_integral(tmp_path):
     state = load_scene(textured_scene(tmp_path))
     sky = state.sky

@@ -230,8 +230,9 @@ class _Writer(MaterialsWriter, EmittersWriter):
 
     def _integrator(self, root: ET.Element) -> None:
         render = self.state.render
-        # Mitsuba shades with vertex normals and normal maps without the terminator's falloff
-        # and without bending them: both off is its twin.
+        # Mitsuba shades with vertex normals and normal maps (its normalmap's own fixes
+        # switched off) without the terminator's falloff and without bending them: both off
+        # is its twin.
         if off := sorted(set(render.effects) - {"shadow_terminator", "normal_bending"}):
             raise UnsupportedFeature(
                 f"effects switched off ({', '.join(off)})", "Mitsuba renders them all"

@@ -77,7 +77,10 @@ class MaterialsWriter:
         """``bsdf`` under Mitsuba's ``normalmap``: the map's linear texels with its strength
         baked in (Mitsuba normalises ``2 c - 1`` as we do, and has no strength), as a raw
         float bitmap. Mitsuba's frame is ours: ``dp/du`` made orthogonal to the normal, and
-        their cross product."""
+        their cross product. Its two fixes (on by default since 3.7.1) are switched off, so
+        that it is the twin of ours with both effects off (docs/mitsuba.md): flipping a
+        normal the viewer is below (ours: bending, or nothing scattered) and Estevez et al.'s
+        shadowing term (ours: Chiang et al.'s terminator falloff)."""
         texels = self.state.textures[normal_map.file].astype(np.float64) / 255.0
         vector = (2.0 * texels - 1.0) * [normal_map.strength, normal_map.strength, 1.0]
         encoded = ((vector + 1.0) / 2.0).astype(np.float32)
@@ -92,6 +95,8 @@ class MaterialsWriter:
         child(element, "boolean", name="raw", value="true")
         child(element, "string", name="filter_type", value="bilinear")
         child(element, "string", name="wrap_mode", value=normal_map.wrap)
+        child(wrapper, "boolean", name="flip_invalid_normals", value="false")
+        child(wrapper, "boolean", name="use_shadowing_function", value="false")
         wrapper.append(bsdf)
         return wrapper
 
