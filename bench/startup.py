@@ -7,11 +7,17 @@ still this small renders in the command's own process by default; the same comma
 ``--no-in-process`` (through a tracer actor on an embedded Ray) is timed beside it, as are
 importing the tracer (``python -c "import tracer.render, tracer.scene.loader"``) and the bare
 interpreter (``python -c pass``), interleaved with the warm runs.
+
+``--base TREE`` times cold starts of another source tree (a checkout, run with ``PYTHONPATH``
+set to it) alternating with this one's, ``--cold-repeats`` rounds, each with an empty cache of
+its own: what a change did to the compile time.
 """
 
 import argparse
+import functools
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -57,9 +63,18 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--skip-cold", action="store_true", help="reuse the user's kernel cache, no cold start"
     )
     parser.add_argument("--timeout", type=float, default=600.0, help="seconds allowed per run")
+    parser.add_argument(
+        "--base", type=Path, help="another source tree whose cold starts alternate with this one's"
+    )
+    parser.add_argument("--cold-repeats", type=int, default=1, help="cold starts per tree")
     args = parser.parse_args(argv)
-    if args.repeats < 1:
-        parser.error("--repeats must be at least 1")
+    args.scene = args.scene.resolve()
+    if args.repeats < 1 or args.cold_repeats < 1:
+        parser.error("--repeats and --cold-repeats must be at least 1")
+    if args.base is not None and not (args.base / "cli" / "main.py").is_file():
+        parser.error(f"--base {args.base}: not a tilerender source tree (no cli/main.py)")
+    if args.base is not None and args.skip_cold:
+        parser.error("--base compares cold starts: drop --skip-cold")
     return args
 
 
@@ -79,10 +94,12 @@ def child_env(cache: Path | None) -> dict[str, str]:
     return env
 
 
-def run_command(command: list[str], env: dict[str, str], timeout: float) -> None:
-    """Run ``command`` (from the repo root); raise with its stderr if it fails."""
+def run_command(
+    command: list[str], env: dict[str, str], timeout: float, cwd: Path = REPO_ROOT
+) -> None:
+    """Run ``command`` (from ``cwd``); raise with its stderr if it fails."""
     result = subprocess.run(
-        command, cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=timeout
+        command, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
     )
     if result.returncode != 0:
         raise RuntimeError(
@@ -133,7 +150,9 @@ def main(argv: list[str] | None = None) -> int:
         shutil.rmtree(work, ignore_errors=True)
     results["verdicts"] = report(results)
     write_results(
-        "startup", {"settings": vars(args) | {"scene": str(args.scene)}, **results}, machine
+        "startup",
+        {"settings": vars(args) | {"scene": str(args.scene), "base": str(args.base)}, **results},
+        machine,
     )
     return 0
 
@@ -146,11 +165,20 @@ def measure(args: argparse.Namespace, work: Path) -> dict:
     command = render_command(args.scene, output)
     results: dict = {"command": display_command(command, args.scene)}
     if cache is not None:
-        cache.mkdir()
-        with console.status("cold start: compiling every kernel into an empty cache"):
-            cold, _ = time_call(lambda: run_command(command, env, args.timeout))
+        cold = cold_starts(args, work, command)
         files, size = cache_size(cache)
-        results["cold"] = {"seconds": cold, "cache_files": files, "cache_bytes": size}
+        results["cold"] = {
+            "seconds": statistics.median(cold["tree"]),
+            "runs": cold["tree"],
+            "cache_files": files,
+            "cache_bytes": size,
+        }
+        if args.base is not None:
+            results["cold_base"] = {
+                "tree": str(args.base),
+                "seconds": statistics.median(cold["base"]),
+                "runs": cold["base"],
+            }
     else:
         with console.status("warm-up run (compiles the kernels if the user's cache is stale)"):
             run_command(command, env, args.timeout)
@@ -172,6 +200,30 @@ def measure(args: argparse.Namespace, work: Path) -> dict:
     return results
 
 
+def cold_starts(args: argparse.Namespace, work: Path, command: list[str]) -> dict[str, list]:
+    """Seconds of each cold start, by tree (``tree``, and ``base`` with ``--base``), taking
+    turns at going first. This tree's last cold start leaves its kernels in ``numba-cache``."""
+    trees = {"tree": (REPO_ROOT, command)}
+    if args.base is not None:
+        base = args.base.resolve()
+        base_command = [sys.executable, "-m", "cli.main", *command[command.index("render") :]]
+        trees["base"] = (base, base_command)
+    seconds: dict[str, list] = {name: [] for name in trees}
+    for round_ in range(args.cold_repeats):
+        order = list(trees) if round_ % 2 == 0 else list(reversed(trees))
+        for name in order:
+            cwd, run = trees[name]
+            cache = work / ("numba-cache" if name == "tree" else "numba-base")
+            shutil.rmtree(cache, ignore_errors=True)
+            cache.mkdir()
+            env = child_env(cache) | ({"PYTHONPATH": str(cwd)} if name == "base" else {})
+            start = functools.partial(run_command, run, env, args.timeout, cwd)
+            with console.status(f"cold start {round_ + 1} of {name}: an empty kernel cache"):
+                elapsed, _ = time_call(start)
+            seconds[name].append(elapsed)
+    return seconds
+
+
 def seconds_summary(series: Series) -> dict:
     return {
         "seconds": series.seconds,
@@ -191,9 +243,21 @@ def report(results: dict) -> dict[str, str]:
             [
                 f"tilerender render (cold: {cold['cache_files']} cache files, {mb:.1f} MB)",
                 fmt_float(cold["seconds"]),
-                "",
+                fmt_float(min(cold["runs"])),
                 f"<= {COLD_TARGET:g}",
                 styled_verdict(verdicts["cold"]),
+            ]
+        )
+    base = results.get("cold_base")
+    if base is not None:
+        ratio = cold["seconds"] / base["seconds"]
+        rows.append(
+            [
+                f"the same, --base {base['tree']} (cold; this tree takes {ratio:.2f}x)",
+                fmt_float(base["seconds"]),
+                fmt_float(min(base["runs"])),
+                "",
+                "",
             ]
         )
     for name, s in results["warm"].items():
@@ -208,7 +272,8 @@ def report(results: dict) -> dict[str, str]:
         f"Start-up: {results['command']}",
         ["run", "median s", "best s", "target", "verdict"],
         rows,
-        caption="wall time of each subprocess; cold is a single run, the others interleaved",
+        caption="wall time of each subprocess; cold runs (median) alternate between trees, "
+        "the others are interleaved",
     )
     return verdicts
 
