@@ -1,0 +1,160 @@
+"""The light tree: choosing one emissive triangle by its importance as seen from a point.
+
+A binary BVH over the emissive triangles (built by ``tracer.compiled.light_tree``), each node
+bounding its triangles' positions, the cone of their normals and their summed power. From a
+shading point ``p`` with normal ``n`` a walk from the root picks a child by the children's
+importance (pbrt-v4's ``LightBounds::Importance``: power over squared distance, times the best
+cosines the bounds allow at the emitters and at ``p``) until it reaches a triangle; the
+triangle's probability is the product of the choices. ``tree_pmf`` recomputes that product for
+a given triangle from its bit trail (a set bit: the second child), in the same order and with
+the same expressions, so sampling and MIS see the same bits. ``docs/effects.md`` ("Many
+lights").
+
+Emitters are area lights: they emit over the hemisphere of their normal (two-sided ones over
+both), so a node's emission cone is its normal cone widened by 90 degrees. The importance at
+``p`` counts only light arriving above ``n``: the BSDFs that sample lights reflect only.
+"""
+
+import numpy as np
+
+from tracer.kernel.jit import jit, jit_inline
+
+NODE = 13
+"""Columns of ``light_tree_nodes``: ``LO`` (3) and ``HI`` (3) the box of the triangles,
+``AXIS`` (3) the unit axis of their normals' cone, ``COS_O`` and ``SIN_O`` its half-angle,
+``PHI`` their summed selection weight, ``TWO_SIDED`` 1 if any of them emits on both sides."""
+LO = 0
+HI = 3
+AXIS = 6
+COS_O = 9
+SIN_O = 10
+PHI = 11
+TWO_SIDED = 12
+
+ONE_MINUS_EPSILON = 0.99999999999999989
+"""The largest float64 below 1: a rescaled random number stays in [0, 1)."""
+
+
+@jit_inline
+def _cos_sub(sin_a, cos_a, sin_b, cos_b):
+    """cos(max(0, a - b)) for angles a, b in [0, pi]."""
+    if cos_a > cos_b:
+        return 1.0
+    return cos_a * cos_b + sin_a * sin_b
+
+
+@jit_inline
+def _sin_sub(sin_a, cos_a, sin_b, cos_b):
+    """sin(max(0, a - b)) for angles a, b in [0, pi]."""
+    if cos_a > cos_b:
+        return 0.0
+    return sin_a * cos_b - cos_a * sin_b
+
+
+@jit_inline
+def _safe_sqrt(x):
+    return np.sqrt(max(0.0, x))
+
+
+@jit_inline
+def importance(nodes, i, p, n):
+    """How much node ``i``'s triangles may light the point ``p`` with normal ``n`` (a bound
+    on power / distance^2 times the emitter and receiver cosines; 0 only where none can)."""
+    cx = 0.5 * (nodes[i, LO] + nodes[i, HI])
+    cy = 0.5 * (nodes[i, LO + 1] + nodes[i, HI + 1])
+    cz = 0.5 * (nodes[i, LO + 2] + nodes[i, HI + 2])
+    ex = nodes[i, HI] - nodes[i, LO]
+    ey = nodes[i, HI + 1] - nodes[i, LO + 1]
+    ez = nodes[i, HI + 2] - nodes[i, LO + 2]
+    r2 = 0.25 * (ex * ex + ey * ey + ez * ez)  # the bounding sphere's radius^2
+    dx = p[0] - cx
+    dy = p[1] - cy
+    dz = p[2] - cz
+    d2 = dx * dx + dy * dy + dz * dz
+    if d2 <= r2:  # inside the bounding sphere: every direction and cosine is possible
+        return nodes[i, PHI] / max(r2, 1e-300)
+    inv = 1.0 / np.sqrt(d2)
+    wx = dx * inv  # from the centre toward p
+    wy = dy * inv
+    wz = dz * inv
+    cos_w = nodes[i, AXIS] * wx + nodes[i, AXIS + 1] * wy + nodes[i, AXIS + 2] * wz
+    if nodes[i, TWO_SIDED] != 0.0:
+        cos_w = abs(cos_w)
+    sin_w = _safe_sqrt(1.0 - cos_w * cos_w)
+    cos_b = _safe_sqrt(1.0 - r2 / d2)  # half-angle of the sphere seen from p
+    sin_b = _safe_sqrt(1.0 - cos_b * cos_b)
+    cos_x = _cos_sub(sin_w, cos_w, nodes[i, SIN_O], nodes[i, COS_O])
+    sin_x = _sin_sub(sin_w, cos_w, nodes[i, SIN_O], nodes[i, COS_O])
+    cos_e = _cos_sub(sin_x, cos_x, sin_b, cos_b)
+    if cos_e <= 0.0:  # p is behind every emitter
+        return 0.0
+    cos_i = -(n[0] * wx + n[1] * wy + n[2] * wz)
+    sin_i = _safe_sqrt(1.0 - cos_i * cos_i)
+    cos_r = _cos_sub(sin_i, cos_i, sin_b, cos_b)
+    if cos_r <= 0.0:  # every emitter is below p's surface
+        return 0.0
+    return nodes[i, PHI] * cos_e * cos_r / d2
+
+
+@jit
+def tree_sample(nodes, child, p, n, u):
+    """A triangle for the point ``p`` with normal ``n``, chosen by ``u`` in [0, 1):
+    ``(light, pmf)``, its index among the emissive triangles (the first entries of the light
+    table) and probability; ``(-1, 0.0)`` when no triangle can light ``p``."""
+    i = 0
+    pmf = 1.0
+    if child[0] < 0:
+        if importance(nodes, 0, p, n) > 0.0:
+            return -1 - child[0], 1.0
+        return -1, 0.0
+    while child[i] >= 0:
+        c0 = importance(nodes, i + 1, p, n)
+        c1 = importance(nodes, child[i], p, n)
+        total = c0 + c1
+        if not total > 0.0:
+            return -1, 0.0
+        p0 = c0 / total
+        if u < p0:
+            u = min(u / p0, ONE_MINUS_EPSILON)
+            pmf *= p0
+            i = i + 1
+        else:
+            u = min((u - p0) / (1.0 - p0), ONE_MINUS_EPSILON)
+            pmf *= c1 / total
+            i = child[i]
+    return -1 - child[i], pmf
+
+
+@jit
+def tree_pmf(nodes, child, bits, light, p, n):
+    """The probability with which ``tree_sample`` picks triangle ``light`` for ``p`` and
+    ``n`` (the same products in the same order)."""
+    if child[0] < 0:
+        return 1.0 if importance(nodes, 0, p, n) > 0.0 else 0.0
+    trail = bits[light]
+    i = 0
+    pmf = 1.0
+    while child[i] >= 0:
+        c0 = importance(nodes, i + 1, p, n)
+        c1 = importance(nodes, child[i], p, n)
+        total = c0 + c1
+        if not total > 0.0:
+            return 0.0
+        if trail & np.uint64(1):
+            pmf *= c1 / total
+            i = child[i]
+        else:
+            pmf *= c0 / total
+            i = i + 1
+        trail = trail >> np.uint64(1)
+    return pmf
+
+
+@jit
+def tree_light_of(keys, key_light, k, j):
+    """The index among the emissive triangles of row ``j`` of instance ``k``'s pool, or -1."""
+    key = (np.int64(k) << np.int64(32)) | np.int64(j)
+    at = np.searchsorted(keys, key)
+    if at < keys.shape[0] and keys[at] == key:
+        return key_light[at]
+    return -1
