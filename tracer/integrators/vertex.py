@@ -40,7 +40,7 @@ from tracer.shading.bsdf import (
     diffuse_sample,
 )
 from tracer.shading.camera import LENS_DIM
-from tracer.shading.light_tree import ONE_MINUS_EPSILON, tree_light_of, tree_pmf, tree_sample
+from tracer.shading.light_tree import NOT_TREE, tree_hit_density, tree_pick
 from tracer.shading.lights import (
     TRIANGLE,
     emission_mean,
@@ -83,43 +83,6 @@ def material_param(mat_param, mat):
     ``bsdf.PARAMS`` values)."""
     return (mat_param[mat, 0], mat_param[mat, 1], mat_param[mat, 2], mat_param[mat, 3],
             mat_param[mat, 4], mat_param[mat, 5], mat_param[mat, 6], mat_param[mat, 7])  # fmt: skip
-
-
-@jit_inline
-def tree_density(s, e, pmf):
-    """The area density of a light-tree sample: the tree's share of the power times the
-    tree's probability ``pmf`` of triangle ``e``, over its area (0 for ``e < 0``)."""
-    if e < 0:
-        return 0.0
-    share = s.light_cdf[s.light_tree_area.shape[0] - 1]
-    return share * pmf / s.light_tree_area[e]
-
-
-@jit_inline
-def pick_entry(s, u0, tree, p, n):
-    """The light entry ``u0`` picks and, for a light-tree pick, its area density (else -1):
-    by power, or with ``tree`` the light tree for triangles as seen from ``p`` and ``n``
-    (their share of ``u0``, rescaled). A failed tree pick is entry -1."""
-    if tree:
-        share = s.light_cdf[s.light_tree_area.shape[0] - 1]
-        if u0 < share:
-            u = min(u0 / share, ONE_MINUS_EPSILON)
-            e, pmf = tree_sample(s.light_tree_nodes, s.light_tree_child, p, n, u)
-            return e, tree_density(s, e, pmf)
-    return pick_light(s, u0), -1.0
-
-
-@jit_inline
-def hit_density(s, k, j, e_mean, tree, p, n):
-    """The area density with which light sampling at ``p`` (normal ``n``) picks the point of
-    emissive triangle ``j`` of instance ``k`` (mean emission ``e_mean``) a ray hit."""
-    if tree:
-        e = tree_light_of(s.light_tree_keys, s.light_tree_key_light, k, j)
-        pmf = 0.0
-        if e >= 0:
-            pmf = tree_pmf(s.light_tree_nodes, s.light_tree_child, s.light_tree_bits, e, p, n)
-        return tree_density(s, e, pmf)
-    return e_mean / s.light_total[0]
 
 
 @jit_inline
@@ -234,7 +197,14 @@ def vertex_shader(materials: bool, lights: bool):
             if e_mean > 0.0:
                 w = 1.0
                 if depth > 1 and has_lights and mis and not delta_prev:
-                    sel = hit_density(s, k, j, e_mean, tree, prev_p, prev_n)
+                    if tree:
+                        sel = tree_hit_density(s.light_cdf, s.light_tree_nodes,
+                                               s.light_tree_child, s.light_tree_bits,
+                                               s.light_tree_area, s.light_tree_keys,
+                                               s.light_tree_key_light, k, j, prev_p,
+                                               prev_n)  # fmt: skip
+                    else:
+                        sel = e_mean / s.light_total[0]
                     p_light = sel * t * t / abs(cos_o)
                     w = power_heuristic(p_bsdf_prev, p_light)
                 elif depth > 1 and has_lights and nee_only and not delta_prev:
@@ -265,7 +235,14 @@ def vertex_shader(materials: bool, lights: bool):
         # Sample a light (next-event estimation); delta lobes never meet one. Pick one (by
         # power, or triangles with the light tree), then a point or direction on it.
         if has_lights and not delta:
-            e, sel = pick_entry(s, uniform(key, dim), tree, p, ns)
+            u0 = uniform(key, dim)
+            e = NOT_TREE
+            sel = -1.0
+            if tree:
+                e, sel = tree_pick(s.light_cdf, s.light_tree_nodes, s.light_tree_child,
+                                   s.light_tree_area, u0, p, ns)  # fmt: skip
+            if e == NOT_TREE:
+                e = pick_light(s, u0)
             picked = e >= 0
             e = max(e, 0)
             u1, u2 = uniform2(key, dim + 1)

@@ -33,6 +33,8 @@ TWO_SIDED = 12
 
 ONE_MINUS_EPSILON = 0.99999999999999989
 """The largest float64 below 1: a rescaled random number stays in [0, 1)."""
+NOT_TREE = -2
+"""``tree_pick``'s entry when the random number falls on the lights beside the tree."""
 
 
 @jit_inline
@@ -158,3 +160,35 @@ def tree_light_of(keys, key_light, k, j):
     if at < keys.shape[0] and keys[at] == key:
         return key_light[at]
     return -1
+
+
+@jit_inline
+def _share(cdf, area):
+    """The probability that light selection picks the tree (its emissive triangles are the
+    first entries of the power CDF): their share of the power."""
+    return cdf[area.shape[0] - 1]
+
+
+@jit
+def tree_pick(cdf, nodes, child, area, u0, p, n):
+    """Light selection by ``u0`` with the tree: ``(entry, density)``, a triangle picked by the
+    tree from its share of ``u0`` (rescaled) and its area density (share times PMF over area),
+    or ``(NOT_TREE, -1.0)`` when ``u0`` falls on the other lights (pick them by power), or
+    ``(-1, 0.0)`` when the tree has no triangle for ``p``."""
+    share = _share(cdf, area)
+    if not u0 < share:
+        return NOT_TREE, -1.0
+    e, pmf = tree_sample(nodes, child, p, n, min(u0 / share, ONE_MINUS_EPSILON))
+    if e < 0:
+        return -1, 0.0
+    return e, share * pmf / area[e]
+
+
+@jit
+def tree_hit_density(cdf, nodes, child, bits, area, keys, key_light, k, j, p, n):
+    """The area density with which ``tree_pick`` at ``p`` (normal ``n``) picks the point of
+    row ``j`` of instance ``k``'s pool that a ray hit (0 if it is not an emissive triangle)."""
+    e = tree_light_of(keys, key_light, k, j)
+    if e < 0:
+        return 0.0
+    return _share(cdf, area) * tree_pmf(nodes, child, bits, e, p, n) / area[e]
