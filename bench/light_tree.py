@@ -119,7 +119,9 @@ def summarise(runs: dict[str, list], camera, floor: float, auto: dict) -> dict:
             "records": frames,
         }
     power, tree = (out["samplers"][s]["seconds"] for s in SAMPLERS)
-    out["speedup_paired_median"] = _median([a / b for a, b in zip(power, tree) if a and b])
+    out["speedup_paired_median"] = _median(
+        [a / b for a, b in zip(power, tree, strict=True) if a and b]
+    )
     return out
 
 
