@@ -165,6 +165,25 @@ def test_job_kernel_choice_same_pixels_and_bad_kernel_refused(client):
     assert client.get("/v1/jobs").json()["count"] == jobs_before
 
 
+def test_job_light_sampler(client, tmp_path):
+    """A job may name the light sampler: the frame is rendered and its metadata says which
+    sampler ran; an unknown one is a 422 naming the field."""
+    scene = upload_tiny(client)
+    body = {"scene_id": scene["id"], "spp": 2, "width": 12, "height": 8, "light_sampler": "tree"}
+    r = client.post("/v1/jobs", json=body)
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json()["id"])
+    assert job["status"] == "done", job
+    from tracer.io.layers import read_layers
+
+    bundle = tmp_path / "frame.npz"
+    bundle.write_bytes(client.get(f"/v1/jobs/{job['id']}/frames/0?format=npz").content)
+    _, metadata = read_layers(bundle)
+    assert metadata["effect_plan"]["light_sampler"] == "tree"
+    r = client.post("/v1/jobs", json={"scene_id": scene["id"], "light_sampler": "bvh"})
+    assert r.status_code == 422 and "light_sampler" in r.text
+
+
 def test_job_layers_aovs_and_denoise(client, tmp_path):
     """A job with aovs and denoise: its frame's default image is the denoised layer, ?layer=
     gives each layer, format=npz and a multilayer exr hold every layer with the same bits and
