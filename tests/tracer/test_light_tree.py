@@ -10,7 +10,7 @@ import pytest
 
 from tests.helpers import SCENES
 from tests.stats import pass_statistics, welch_pixel_test
-from tracer.compiled.light_tree import build_light_tree
+from tracer.compiled.light_tree import build_light_tree, light_tree_of
 from tracer.compiled.scene import compile_scene
 from tracer.integrators import flags
 from tracer.integrators.effects import TREE_MIN_TRIANGLES, effect_plan
@@ -74,7 +74,7 @@ def test_pmf_is_a_distribution_from_fixed_points(name, request):
     """From fixed points and normals the PMFs over all triangles sum to 1 less the mass of the
     walk's dead ends (exactly 1 where there are none), and never exceed 1."""
     scene = request.getfixturevalue(name)
-    tree = scene.light_tree
+    tree = light_tree_of(scene)
     assert tree.light_tree_area.shape[0] == scene.stats.emissive_triangles
     for p, n in _points(scene, 12, seed=5):
         pmf = _pmfs(tree, p, n)
@@ -86,7 +86,7 @@ def test_the_sampler_reports_the_pmf_of_what_it_picks(hall):
     """For many random numbers the sampled triangle's reported probability is the PMF
     function's, bit for bit, and each triangle is picked for a share of [0, 1) equal to its
     PMF (the walk maps [0, 1) onto intervals)."""
-    tree = hall.light_tree
+    tree = light_tree_of(hall)
     count = tree.light_tree_area.shape[0]
     u = (np.arange(20000) + 0.5) / 20000
     for p, n in _points(hall, 3, seed=11):
@@ -103,7 +103,7 @@ def test_the_sampler_reports_the_pmf_of_what_it_picks(hall):
 def test_every_triangle_that_can_light_a_point_can_be_picked(hall):
     """A triangle whose front faces the point and that rises above the point's surface has a
     positive probability (the bounds are conservative: else the estimator would be biased)."""
-    tree = hall.light_tree
+    tree = light_tree_of(hall)
     a = hall.arrays
     count = tree.light_tree_area.shape[0]
     verts = np.empty((count, 3, 3))
@@ -124,9 +124,9 @@ def test_every_triangle_that_can_light_a_point_can_be_picked(hall):
 def test_the_build_is_deterministic(hall):
     """The same arrays, built twice; bit trails fit their depth (64 bits)."""
     again = build_light_tree(hall.arrays)
-    for a, b in zip(hall.light_tree, again, strict=True):
+    for a, b in zip(light_tree_of(hall), again, strict=True):
         assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
-    assert np.array_equal(np.sort(hall.light_tree.light_tree_key_light), np.arange(3920))
+    assert np.array_equal(np.sort(light_tree_of(hall).light_tree_key_light), np.arange(3920))
 
 
 def test_the_plan_chooses_the_tree_by_its_rule(hall, cornell):

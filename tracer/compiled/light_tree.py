@@ -10,6 +10,7 @@ first order: a node's first child follows it, ``light_tree_child`` names the sec
 zero, ``-1 - light`` for a leaf).
 """
 
+import weakref
 from typing import NamedTuple
 
 import numpy as np
@@ -48,6 +49,18 @@ def empty_tree() -> LightTreeArrays:
     """No tree."""
     return LightTreeArrays(np.zeros((0, NODE)), np.zeros(0, np.int32), np.zeros(0, np.uint64),
                            np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int32))  # fmt: skip
+
+
+_TREES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+"""Each compiled scene's tree, built the first time a plan samples lights with it."""
+
+
+def light_tree_of(scene) -> LightTreeArrays:
+    """The light tree of a ``CompiledScene`` (built once, kept as long as the scene)."""
+    tree = _TREES.get(scene)
+    if tree is None:
+        tree = _TREES[scene] = build_light_tree(scene.arrays)
+    return tree
 
 
 def build_light_tree(arrays) -> LightTreeArrays:

@@ -22,7 +22,6 @@ is an error.
 
 import dataclasses
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
@@ -30,7 +29,7 @@ from tracer import config
 from tracer.compiled.arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
 from tracer.compiled.corners import NO_CORNERS, Corners, mesh_corners
 from tracer.compiled.corners import joined as joined_corners
-from tracer.compiled.light_tree import LightTreeArrays, build_light_tree, empty_tree
+from tracer.compiled.light_tree import empty_tree
 from tracer.compiled.static_clusters import cluster_nodes, snapped_center
 from tracer.compiled.zero_area import all_zero_area, zero_area_mask
 from tracer.errors import SceneError
@@ -158,12 +157,6 @@ class CompiledScene:
     def nbytes(self) -> int:
         """Bytes of every array the kernels read."""
         return self.arrays.nbytes
-
-    @cached_property
-    def light_tree(self) -> LightTreeArrays:
-        """The light tree over the emissive triangles, built when a plan first samples
-        lights with it."""
-        return build_light_tree(self.arrays)
 
 
 @jit

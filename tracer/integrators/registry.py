@@ -15,6 +15,7 @@ import numpy as np
 
 from tracer import config
 from tracer.compiled.arrays import SceneArrays
+from tracer.compiled.light_tree import light_tree_of
 from tracer.compiled.scene import CompiledScene
 from tracer.integrators import path, stream, surface, vertex
 from tracer.integrators.flags import (
@@ -63,7 +64,7 @@ def arrays_for_plan(scene: CompiledScene, flags: int) -> SceneArrays:
     if not present <= kinds:
         arrays = arrays._replace(**scene_fields(light_arrays(scene.lights, kinds)))
     if flags & LIGHT_TREE:
-        arrays = arrays._replace(**scene.light_tree._asdict())
+        arrays = arrays._replace(**light_tree_of(scene)._asdict())
     return arrays
 
 
