@@ -5,9 +5,9 @@ Run from the repository root (it rewrites the files beside this script)::
     python scenes/lamp-hall/make_lamp_hall.py
 
 - ``lamps-warm.ply``, ``lamps-cool.ply``, ``lamps-red.ply``: per colour, square ceiling lamps
-  (two triangles each, facing down) on a jittered 40 x 24 grid under the hall's 20 x 12 m
-  ceiling, and octahedral bulbs (eight triangles each, facing out) hanging at random heights;
-  3,920 emissive triangles in all.
+  (two triangles each, facing down) on a jittered 48 x 24 grid under the hall's 60 x 30 m
+  ceiling, 3 m above the floor, and octahedral bulbs (eight triangles each, facing out)
+  hanging at random heights; 3,904 emissive triangles in all.
 
 The random numbers come from a fixed seed: the output is the same on every run.
 """
@@ -19,12 +19,12 @@ import trimesh
 
 HERE = Path(__file__).resolve().parent
 SEED = 26
-HALL = (20.0, 3.2, 12.0)
+HALL = (60.0, 3.0, 30.0)
 """The hall's size (x, y, z), its floor centred on the origin (``scene.json``'s room box)."""
-GRID = (40, 24)
+GRID = (48, 24)
 CEILING_LAMP = 0.1
 """A ceiling lamp's side (m)."""
-BULBS = 250
+BULBS = 200
 BULB_RADIUS = 0.05
 COLOURS = ("warm", "cool", "red")
 WEIGHTS = (0.6, 0.3, 0.1)
@@ -75,7 +75,7 @@ def lamp_meshes() -> dict[str, trimesh.Trimesh]:
         add(colour, quad, np.array([[0, 1, 2], [0, 2, 3]]))
     for _ in range(BULBS):
         centre = np.array(
-            [rng.uniform(-0.48, 0.48) * HALL[0], rng.uniform(1.2, 2.8),
+            [rng.uniform(-0.48, 0.48) * HALL[0], rng.uniform(1.2, 2.6),
              rng.uniform(-0.48, 0.48) * HALL[2]]
         )  # fmt: skip
         colour = COLOURS[rng.choice(len(COLOURS), p=WEIGHTS)]

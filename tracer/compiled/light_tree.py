@@ -19,7 +19,7 @@ from tracer.compiled.arrays import pick
 from tracer.geometry.intersect import geometric_normal
 from tracer.geometry.transforms import apply_normal, apply_point
 from tracer.kernel.jit import jit
-from tracer.shading.light_tree import AXIS, COS_O, HI, LO, NODE, PHI, SIN_O, TWO_SIDED
+from tracer.shading.light_tree import AXIS, CENTRE, COS_O, NODE, PHI, RADIUS2, SIN_O, TWO_SIDED
 from tracer.shading.lights import TRIANGLE, emission_mean
 
 BUCKETS = 12
@@ -300,8 +300,11 @@ def _build(verts, normal, phi, two_sided):
         lo, hi, axis, cos_o, power, two, _ = _side(
             verts, normal, phi, two_sided, idx, start, end, bucket, 0, False
         )
-        nodes[node, LO : LO + 3] = lo
-        nodes[node, HI : HI + 3] = hi
+        r2 = 0.0
+        for a in range(3):
+            nodes[node, CENTRE + a] = 0.5 * (lo[a] + hi[a])
+            r2 += 0.25 * (hi[a] - lo[a]) * (hi[a] - lo[a])
+        nodes[node, RADIUS2] = r2
         nodes[node, AXIS : AXIS + 3] = axis
         nodes[node, COS_O] = cos_o
         nodes[node, SIN_O] = np.sqrt(max(0.0, 1.0 - cos_o * cos_o))

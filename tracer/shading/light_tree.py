@@ -19,17 +19,18 @@ import numpy as np
 
 from tracer.kernel.jit import jit, jit_inline
 
-NODE = 13
-"""Columns of ``light_tree_nodes``: ``LO`` (3) and ``HI`` (3) the box of the triangles,
-``AXIS`` (3) the unit axis of their normals' cone, ``COS_O`` and ``SIN_O`` its half-angle,
-``PHI`` their summed selection weight, ``TWO_SIDED`` 1 if any of them emits on both sides."""
-LO = 0
-HI = 3
-AXIS = 6
-COS_O = 9
-SIN_O = 10
-PHI = 11
-TWO_SIDED = 12
+NODE = 11
+"""Columns of ``light_tree_nodes``: ``CENTRE`` (3) and ``RADIUS2`` the sphere around the box
+of the triangles (its centre and squared radius), ``AXIS`` (3) the unit axis of their normals'
+cone, ``COS_O`` and ``SIN_O`` its half-angle, ``PHI`` their summed selection weight,
+``TWO_SIDED`` 1 if any of them emits on both sides."""
+CENTRE = 0
+RADIUS2 = 3
+AXIS = 4
+COS_O = 7
+SIN_O = 8
+PHI = 9
+TWO_SIDED = 10
 
 ONE_MINUS_EPSILON = 0.99999999999999989
 """The largest float64 below 1: a rescaled random number stays in [0, 1)."""
@@ -38,61 +39,53 @@ NOT_TREE = -2
 
 
 @jit_inline
-def _cos_sub(sin_a, cos_a, sin_b, cos_b):
-    """cos(max(0, a - b)) for angles a, b in [0, pi]."""
-    if cos_a > cos_b:
-        return 1.0
-    return cos_a * cos_b + sin_a * sin_b
-
-
-@jit_inline
-def _sin_sub(sin_a, cos_a, sin_b, cos_b):
-    """sin(max(0, a - b)) for angles a, b in [0, pi]."""
-    if cos_a > cos_b:
-        return 0.0
-    return sin_a * cos_b - cos_a * sin_b
-
-
-@jit_inline
 def _safe_sqrt(x):
     return np.sqrt(max(0.0, x))
+
+
+@jit_inline
+def _cos_sub_lazy(cos_a, cos_b, sin_b):
+    """cos(max(0, a - b)) for angles a, b in [0, pi], taking sin(a) only when needed."""
+    if cos_a > cos_b:
+        return 1.0
+    return cos_a * cos_b + _safe_sqrt(1.0 - cos_a * cos_a) * sin_b
 
 
 @jit_inline
 def importance(nodes, i, p, n):
     """How much node ``i``'s triangles may light the point ``p`` with normal ``n`` (a bound
     on power / distance^2 times the emitter and receiver cosines; 0 only where none can)."""
-    cx = 0.5 * (nodes[i, LO] + nodes[i, HI])
-    cy = 0.5 * (nodes[i, LO + 1] + nodes[i, HI + 1])
-    cz = 0.5 * (nodes[i, LO + 2] + nodes[i, HI + 2])
-    ex = nodes[i, HI] - nodes[i, LO]
-    ey = nodes[i, HI + 1] - nodes[i, LO + 1]
-    ez = nodes[i, HI + 2] - nodes[i, LO + 2]
-    r2 = 0.25 * (ex * ex + ey * ey + ez * ez)  # the bounding sphere's radius^2
-    dx = p[0] - cx
-    dy = p[1] - cy
-    dz = p[2] - cz
+    dx = p[0] - nodes[i, CENTRE]
+    dy = p[1] - nodes[i, CENTRE + 1]
+    dz = p[2] - nodes[i, CENTRE + 2]
     d2 = dx * dx + dy * dy + dz * dz
+    r2 = nodes[i, RADIUS2]
     if d2 <= r2:  # inside the bounding sphere: every direction and cosine is possible
         return nodes[i, PHI] / max(r2, 1e-300)
     inv = 1.0 / np.sqrt(d2)
     wx = dx * inv  # from the centre toward p
     wy = dy * inv
     wz = dz * inv
+    sin2_b = r2 / d2
+    cos_b = np.sqrt(1.0 - sin2_b)  # half-angle of the sphere seen from p
+    sin_b = np.sqrt(sin2_b)
+    # Emitter side: the angle from the cone to p, less the cone's and the sphere's half-angles.
     cos_w = nodes[i, AXIS] * wx + nodes[i, AXIS + 1] * wy + nodes[i, AXIS + 2] * wz
     if nodes[i, TWO_SIDED] != 0.0:
         cos_w = abs(cos_w)
-    sin_w = _safe_sqrt(1.0 - cos_w * cos_w)
-    cos_b = _safe_sqrt(1.0 - r2 / d2)  # half-angle of the sphere seen from p
-    sin_b = _safe_sqrt(1.0 - cos_b * cos_b)
-    cos_x = _cos_sub(sin_w, cos_w, nodes[i, SIN_O], nodes[i, COS_O])
-    sin_x = _sin_sub(sin_w, cos_w, nodes[i, SIN_O], nodes[i, COS_O])
-    cos_e = _cos_sub(sin_x, cos_x, sin_b, cos_b)
-    if cos_e <= 0.0:  # p is behind every emitter
-        return 0.0
-    cos_i = -(n[0] * wx + n[1] * wy + n[2] * wz)
-    sin_i = _safe_sqrt(1.0 - cos_i * cos_i)
-    cos_r = _cos_sub(sin_i, cos_i, sin_b, cos_b)
+    cos_o = nodes[i, COS_O]
+    if cos_w <= cos_o:  # p outside the normal cone
+        sin_w = _safe_sqrt(1.0 - cos_w * cos_w)
+        sin_o = nodes[i, SIN_O]
+        cos_x = cos_w * cos_o + sin_w * sin_o
+        sin_x = sin_w * cos_o - cos_w * sin_o
+        if cos_x <= cos_b and cos_x * cos_b + sin_x * sin_b <= 0.0:
+            return 0.0  # p is behind every emitter
+        cos_e = 1.0 if cos_x > cos_b else cos_x * cos_b + sin_x * sin_b
+    else:
+        cos_e = 1.0
+    # Receiver side: the angle from n to the sphere, less the sphere's half-angle.
+    cos_r = _cos_sub_lazy(-(n[0] * wx + n[1] * wy + n[2] * wz), cos_b, sin_b)
     if cos_r <= 0.0:  # every emitter is below p's surface
         return 0.0
     return nodes[i, PHI] * cos_e * cos_r / d2
