@@ -20,7 +20,7 @@ from tracer.compiled.arrays import borrow_scene
 from tracer.geometry.scene_intersect import material_of, scene_closest, scene_occluded
 from tracer.integrators import flags
 from tracer.integrators.path import PIXEL_BLOCK, build_for
-from tracer.integrators.vertex import SHADERS, camera_path
+from tracer.integrators.vertex import BUILDS, SHADERS, build_name, camera_path
 from tracer.kernel.borrow import borrowed
 from tracer.kernel.jit import jit, jit_inline, with_globals
 from tracer.maths.rng import pixel_key, sample_key
@@ -80,7 +80,7 @@ def _material_runs(s, hit_i, n, order, counts):
         counts[m] += 1
 
 
-def stream_kernel(materials: bool, lights: bool):
+def stream_kernel(materials: bool, lights: bool, tree: bool):
     """The stream kernel for a build of ``shade`` (as ``tracer.integrators.path.path_kernel``);
     the same arguments as the path kernel's."""
 
@@ -229,12 +229,13 @@ def stream_kernel(materials: bool, lights: bool):
                 out_cost[row, x] = pixel_cost[lp]
                 out_rays[row, x] = pixel_rays[lp]
 
-    trace_stream.__qualname__ = f"trace_stream_{'m' if materials else 'l'}{'o' if lights else 't'}"
-    return jit(with_globals(trace_stream, shade=SHADERS[(materials, lights)]))
+    trace_stream.__qualname__ = f"trace_stream_{build_name(materials, lights, tree)}"
+    return jit(with_globals(trace_stream, shade=SHADERS[(materials, lights, tree)]))
 
 
-KERNELS = {(m, o): stream_kernel(m, o) for m in (False, True) for o in (False, True)}
-"""The stream kernel's four builds, by (materials, lights), as ``tracer.integrators.path``'s."""
+KERNELS = {build: stream_kernel(*build) for build in BUILDS}
+"""The stream kernel's eight builds, by (materials, lights, tree), as
+``tracer.integrators.path``'s."""
 
 
 def kernel_for(plan: int):
