@@ -69,6 +69,7 @@ def job_state(state: SceneState, request: dict) -> SceneState:
         seed=request.get("seed"),
         max_depth=request.get("max_depth"),
         kernel=request.get("kernel"),
+        light_sampler=request.get("light_sampler"),
         aovs=request.get("aovs"),
         denoise=request.get("denoise"),
         denoise_prefilter=request.get("denoise_prefilter"),

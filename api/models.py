@@ -4,7 +4,13 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
-from tracer.integrators.names import ADAPTIVE, DENOISE, DENOISE_PREFILTER, KERNELS
+from tracer.integrators.names import (
+    ADAPTIVE,
+    DENOISE,
+    DENOISE_PREFILTER,
+    KERNELS,
+    LIGHT_SAMPLERS,
+)
 from tracer.scene import format as fmt
 
 MAX_CAMERA_PATH = 10_000
@@ -198,6 +204,11 @@ class JobCreate(Strict):
         default=None,
         description="how paths are traced (the scene's render.kernel by default); the same "
         "image either way",
+    )
+    light_sampler: Literal[LIGHT_SAMPLERS] | None = Field(
+        default=None,
+        description="how light samples pick emissive triangles: power, tree or auto (the "
+        "scene's render.light_sampler by default); the same image in expectation",
     )
     aovs: bool | None = Field(
         default=None,

@@ -23,6 +23,7 @@ from tracer.integrators.names import (
     DENOISE_PREFILTER,
     INTEGRATORS,
     KERNELS,
+    LIGHT_SAMPLERS,
     OUTPUT_LAYERS,
 )
 
@@ -173,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-depth", type=positive_int, help="path vertices after the camera (as for render)"
     )
     add_kernel_option(plan)
+    add_light_sampler_option(plan)
 
     sub.add_parser(
         "schema",
@@ -242,6 +244,16 @@ def add_kernel_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_light_sampler_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--light-sampler",
+        choices=LIGHT_SAMPLERS,
+        help="how light samples pick emissive triangles: power, tree (a light tree) or auto "
+        "(default: the tree where the scene has enough emissive triangles, docs/effects.md); "
+        "the same image in expectation",
+    )
+
+
 def add_layer_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--aov",
@@ -293,6 +305,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         help="path vertices after the camera: 1 = emitters only, 2 = direct light",
     )
     add_kernel_option(parser)
+    add_light_sampler_option(parser)
     add_layer_options(parser)
     parser.add_argument(
         "--adaptive",

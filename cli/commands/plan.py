@@ -15,7 +15,11 @@ def run(args: argparse.Namespace) -> int:
     state = load_scene(args.scene)
     scene = compile_scene(state)
     settings = with_overrides(
-        state, integrator=args.integrator, max_depth=args.max_depth, kernel=args.kernel
+        state,
+        integrator=args.integrator,
+        max_depth=args.max_depth,
+        kernel=args.kernel,
+        light_sampler=args.light_sampler,
     ).render
     report = {
         "scene": args.scene,

@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
         max_depth=args.max_depth,
         integrator=args.integrator,
         kernel=args.kernel,
+        light_sampler=args.light_sampler,
         aovs=args.aov,
         denoise=args.denoise,
         denoise_prefilter=args.denoise_prefilter,

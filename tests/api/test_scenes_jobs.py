@@ -165,6 +165,26 @@ def test_job_kernel_choice_same_pixels_and_bad_kernel_refused(client):
     assert client.get("/v1/jobs").json()["count"] == jobs_before
 
 
+def test_job_light_sampler(client):
+    """A job may name the light sampler, and it reaches the tracers: the tiny scene's frame by
+    the light tree is a real image and not the power sampler's bits (the same seed, other
+    light picks); an unknown sampler is a 422 naming the field."""
+    scene = upload_tiny(client)
+    frames = {}
+    for sampler in ("power", "tree"):
+        body = {"scene_id": scene["id"], "spp": 2, "width": 12, "height": 8}
+        r = client.post("/v1/jobs", json={**body, "light_sampler": sampler})
+        assert r.status_code == 202, r.text
+        job = wait_job(client, r.json()["id"])
+        assert job["status"] == "done", job
+        content = client.get(f"/v1/jobs/{job['id']}/result?format=npy").content
+        frames[sampler] = np.load(io.BytesIO(content))
+    assert frames["tree"].max() > 0.0 and np.isfinite(frames["tree"]).all()
+    assert frames["tree"].tobytes() != frames["power"].tobytes()
+    r = client.post("/v1/jobs", json={"scene_id": scene["id"], "light_sampler": "bvh"})
+    assert r.status_code == 422 and "light_sampler" in r.text
+
+
 def test_job_layers_aovs_and_denoise(client, tmp_path):
     """A job with aovs and denoise: its frame's default image is the denoised layer, ?layer=
     gives each layer, format=npz and a multilayer exr hold every layer with the same bits and

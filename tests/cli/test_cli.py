@@ -342,6 +342,29 @@ def test_kernel_option_on_plan_and_render(capsys, tmp_path, tiny_scene_file):
     assert "invalid choice: 'gpu'" in err
 
 
+def test_light_sampler_option_on_plan_and_render(capsys, tmp_path):
+    """`--light-sampler` picks how light samples pick emissive triangles: `plan` reports it and
+    why (auto: by the scene's count), `render` writes an image with either, and an unknown
+    sampler is a usage error (exit code 2)."""
+    cornell = ROOT / "scenes" / "cornell-box" / "scene.json"
+    code, out, err = run(capsys, "plan", cornell)
+    assert code == 0, err
+    report = json.loads(out)
+    assert report["light_sampler"] == "power" and "2 emissive" in report["reasons"]["light_tree"]
+    code, out, err = run(capsys, "plan", cornell, "--light-sampler", "tree")
+    report = json.loads(out)
+    assert report["light_sampler"] == "tree"
+    assert report["reasons"]["light_tree"] == "set in render.light_sampler"
+    for sampler in ("power", "tree"):
+        out_file = tmp_path / f"{sampler}.npy"
+        args = ("-o", out_file, "--width", 8, "--height", 6, "--spp", 2, "-q")
+        code, _, err = run(capsys, "render", cornell, *args, "--light-sampler", sampler)
+        assert code == 0, err
+        assert read_image(out_file).max() > 0.0
+    code, _, err = run(capsys, "plan", cornell, "--light-sampler", "bvh")
+    assert_usage_error(code, err)
+
+
 def test_plan_and_info_show_textures(capsys, tmp_path):
     """The textured sample scene's plan runs texture lookups and says why; `info` lists its
     images (width, height); a missing texture is a usage error (exit code 2), not a crash."""

@@ -137,6 +137,7 @@ def render_jobs(jobs: list[dict]) -> tuple[list[np.ndarray], list[dict], dict]:
     """Render each job (scene file, width, height, spp) with the public API; returns the
     float32 images, each scene's digests (its arrays, queries and the render's work per line)
     and the path kernel's cache hits and misses in this process."""
+    from tracer.compiled.light_tree import light_tree_of
     from tracer.compiled.scene import compile_scene
     from tracer.integrators.path import kernel_for
     from tracer.render import effect_plan, render_image
@@ -147,10 +148,12 @@ def render_jobs(jobs: list[dict]) -> tuple[list[np.ndarray], list[dict], dict]:
     for job in jobs:
         scene = compile_scene(load_scene(job["scene"]))
         camera = override(scene.camera, width=job["width"], height=job["height"])
-        settings = override(scene.render, spp=job["spp"])
+        sampler = job.get("light_sampler", "auto")
+        settings = override(scene.render, spp=job["spp"], light_sampler=sampler)
         image, cost = render_image(scene, camera, settings)
         images.append(image)
-        digests.append({**array_digests(scene, camera), "render.cost": digest(cost)})
+        tree = {f"light_tree.{k}": digest(v) for k, v in light_tree_of(scene)._asdict().items()}
+        digests.append({**array_digests(scene, camera), **tree, "render.cost": digest(cost)})
         flags.add(effect_plan(scene, settings).flags)
     stats = [k.stats for k in {id(k): k for k in map(kernel_for, flags)}.values()]
     kernel = {
@@ -281,11 +284,18 @@ def differences(run: Run, reference: Run, names: list[str]) -> list[str]:
 
 
 def jobs_for(scenes: dict[str, Path]) -> list[dict]:
-    """One small render job per scene."""
-    return [
+    """One small render job per scene, and the harsh scene again with its light samples picked
+    by the light tree (built over mirrored, sheared and scaled emitters)."""
+    jobs = [
         {"scene": str(path), "width": WIDTH, "height": HEIGHT, "spp": SPP}
         for path in scenes.values()
     ]
+    return [*jobs, {**jobs[-1], "light_sampler": "tree"}]
+
+
+def job_names(scenes: dict[str, Path]) -> list[str]:
+    """The jobs' names, in ``jobs_for``'s order."""
+    return [*scenes, "harsh, light tree"]
 
 
 @pytest.fixture(scope="module")
@@ -350,7 +360,7 @@ def test_another_cpu_renders_the_same_bits(reference, scenes, tmp_path, numba_ta
     assert run.config["openblas"] != reference.config["openblas"]
     assert run.config["numpy_dispatch"] != reference.config["numpy_dispatch"]
     assert cached_cpu_names(cache) == {variant.numba}
-    found = differences(run, reference, list(scenes))
+    found = differences(run, reference, job_names(scenes))
     assert not found, "\n".join(found)
     for image, expected in zip(run.images, reference.images, strict=True):
         assert np.array_equal(image, expected) and image.tobytes() == expected.tobytes()
@@ -366,7 +376,7 @@ def test_cpu_matrix_renders_the_same_bits(reference, scenes, tmp_path, numba_tar
         cache = None if variant.cache_key is None else numba_target_cache(variant.cache_key)
         run = render_in_subprocess(variant, jobs_for(scenes), tmp_path, cache)
         check_config(run, reference)
-        failures += differences(run, reference, list(scenes))
+        failures += differences(run, reference, job_names(scenes))
         config = run.config
         print(  # shown with -s or -rA: what each variant ran and how long it took
             f"{variant.name}: numba {config['numba_cpu']}, OpenBLAS {config['openblas']}, "

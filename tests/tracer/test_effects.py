@@ -11,7 +11,7 @@ from tests.helpers import compile_dict, tiny_scene
 from tests.stats import pass_statistics, welch_pixel_test
 from tracer.compiled.scene import compile_scene
 from tracer.integrators.effects import EffectPlan, effect_plan, needed_effects
-from tracer.integrators.flags import ALL, EFFECTS, MATERIAL_EFFECTS, SUN
+from tracer.integrators.flags import ALL, EFFECTS, LIGHT_TREE, MATERIAL_EFFECTS, SUN
 from tracer.render import render_image
 from tracer.scene.format import override
 from tracer.scene.loader import load_scene
@@ -134,7 +134,7 @@ def plan_and_all(scene, seed_all: int):
     camera = override(scene.camera, width=SIZE[0], height=SIZE[1])
     settings = override(scene.render, spp=SPP)
     plan = effect_plan(scene, settings)
-    everything = EffectPlan(ALL, {})
+    everything = EffectPlan(ALL | (plan.flags & LIGHT_TREE), {})  # the same light sampler
     planned = [
         render_image(scene, camera, settings, sample_start=k * SPP, plan=plan)[0]
         for k in range(PASSES)

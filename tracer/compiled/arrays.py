@@ -111,6 +111,19 @@ class SceneArrays(NamedTuple):
     """float64 (H + 1,): the map's marginal CDF over rows."""
     sky_cols: np.ndarray
     """float64 (H, W + 1): the map's conditional CDFs over each row's columns."""
+    light_tree_nodes: np.ndarray
+    """float64 (N, ``light_tree.NODE``): the light tree over the emissive triangles
+    (``tracer.compiled.light_tree``; empty unless the plan samples lights with it)."""
+    light_tree_child: np.ndarray
+    """int32 (N,): each node's second child, or ``-1 - light`` for a leaf."""
+    light_tree_bits: np.ndarray
+    """uint64 (T,): each emissive triangle's path from the root."""
+    light_tree_area: np.ndarray
+    """float64 (T,): each emissive triangle's area."""
+    light_tree_keys: np.ndarray
+    """int64 (T,): ``instance << 32 | pool row`` of the emissive triangles, ascending."""
+    light_tree_key_light: np.ndarray
+    """int32 (T,): the emissive triangle of each key."""
 
     @property
     def nbytes(self) -> int:
@@ -179,4 +192,10 @@ def borrow_scene(s):
         borrowed(s.sky_image),
         borrowed(s.sky_rows),
         borrowed(s.sky_cols),
+        borrowed(s.light_tree_nodes),
+        borrowed(s.light_tree_child),
+        borrowed(s.light_tree_bits),
+        borrowed(s.light_tree_area),
+        borrowed(s.light_tree_keys),
+        borrowed(s.light_tree_key_light),
     )

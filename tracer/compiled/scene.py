@@ -29,6 +29,7 @@ from tracer import config
 from tracer.compiled.arrays import STABLE_POOL, VOLATILE_POOL, SceneArrays
 from tracer.compiled.corners import NO_CORNERS, Corners, mesh_corners
 from tracer.compiled.corners import joined as joined_corners
+from tracer.compiled.light_tree import empty_tree
 from tracer.compiled.static_clusters import cluster_nodes, snapped_center
 from tracer.compiled.zero_area import all_zero_area, zero_area_mask
 from tracer.errors import SceneError
@@ -569,6 +570,7 @@ def compile_scene(
         tri_normal=(pools[0].tri_normal, pools[1].tri_normal),
         **textures.fields(),
         **scene_fields(light),
+        **empty_tree()._asdict(),
     )
     stats = SceneStats(
         triangles=sum(meshes[key].triangles for key in set(k for _, k, _, _, _ in inst)),

@@ -16,8 +16,10 @@ from dataclasses import dataclass
 
 from tracer.integrators.flags import (
     ALL,
+    AREA_LIGHTS,
     EFFECTS,
     LIGHT_SAMPLES,
+    LIGHT_TREE,
     NORMAL_BENDING,
     NORMAL_MAPS,
     SHADING_NORMALS,
@@ -47,6 +49,7 @@ class EffectPlan:
             "effects": self.names(),
             "skipped": [name for name, bit in EFFECTS.items() if not self.flags & bit],
             "reasons": self.reasons,
+            "light_sampler": "tree" if self.flags & LIGHT_TREE else "power",
         }
 
 
@@ -225,6 +228,23 @@ def _reflects(scene, m: int) -> bool:
     return bool(scene.materials.albedo[m].max() > 0.0)
 
 
+TREE_MIN_TRIANGLES = 64
+"""Emissive triangles from which ``render.light_sampler`` ``auto`` picks them with the light tree
+(``bench/light_tree.py``, docs/performance.md "Many lights")."""
+
+
+def light_sampler(scene, settings: fmt.RenderSettings, flags: int) -> tuple[bool, str]:
+    """Whether light samples pick emissive triangles with the light tree, and why."""
+    if not (flags & LIGHT_SAMPLES and flags & AREA_LIGHTS):
+        return False, "no light samples on emissive triangles"
+    if settings.light_sampler != "auto":
+        return settings.light_sampler == "tree", "set in render.light_sampler"
+    count = scene.stats.emissive_triangles
+    if count >= TREE_MIN_TRIANGLES:
+        return True, f"{count} emissive triangles: the tree gains from {TREE_MIN_TRIANGLES} on"
+    return False, f"{count} emissive triangles: by power below {TREE_MIN_TRIANGLES}"
+
+
 def effect_plan(scene, settings: fmt.RenderSettings) -> EffectPlan:
     """The plan a render runs: the needed effects (or all of them, with ``effect_plan`` false),
     minus those the user switched off."""
@@ -241,4 +261,5 @@ def effect_plan(scene, settings: fmt.RenderSettings) -> EffectPlan:
         flags &= ~SHADOWS
     if not flags & (SHADING_NORMALS | NORMAL_MAPS):
         flags &= ~(SHADOW_TERMINATOR | NORMAL_BENDING)
-    return EffectPlan(flags, reasons)
+    tree, reasons["light_tree"] = light_sampler(scene, settings, flags)
+    return EffectPlan(flags | (LIGHT_TREE if tree else 0), reasons)

@@ -64,6 +64,12 @@ AOVS = 1 << 15
 """Not an effect: an output switch set by ``tracer.render`` when a render asks for AOVs
 (``render.aovs``). The path kernel then records ``tracer.integrators.aov``'s outputs from its
 paths; the beauty's bits are the same with it or without it."""
+LIGHT_TREE = 1 << 20
+"""Not an effect (the image is the same in expectation): a sampling switch the plan sets when
+a scene has enough emissive triangles to gain from it (``tracer.integrators.effects``). Next-event
+estimation then picks emissive triangles with the light tree (``tracer.shading.light_tree``)
+from their share of the power, and emitters that BSDF-sampled rays hit are weighted with the
+tree's probability as seen from the previous vertex."""
 
 EFFECTS = {
     "area_lights": AREA_LIGHTS,

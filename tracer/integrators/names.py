@@ -26,6 +26,11 @@ ADAPTIVE = ("auto", "on", "off")
 """``render.adaptive``'s choices: adaptive sampling in progressive renders where it is predicted
 to win (``cluster.adaptive``), in every wave once the frame has a few samples, or never."""
 
+LIGHT_SAMPLERS = ("auto", "power", "tree")
+"""``render.light_sampler``'s choices: how next-event estimation picks emissive triangles, by
+the rule the effect plan measured (``tracer.integrators.effects``), by power, or with the light
+tree (``tracer.shading.light_tree``)."""
+
 OUTPUT_LAYERS = (
     "beauty",
     "denoised",

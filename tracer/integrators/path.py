@@ -1,7 +1,7 @@
 """Unidirectional path tracing with next-event estimation, MIS and Russian roulette, and the
 Whitted variant (direct light at diffuse and glossy surfaces, recursion through delta lobes).
 
-The kernel (``path_kernel``, built four ways) renders pixel blocks of a pixel run [p0, p1) of
+The kernel (``path_kernel``, built eight ways) renders pixel blocks of a pixel run [p0, p1) of
 a frame: pixels in row-major order (index ``y * width + x``), of which lines [y0, y1) are the
 run [y0 * width, y1 * width). Every random number is drawn from the counter-based RNG keyed by
 (seed, frame, pixel, sample index) at a fixed dimension per path vertex, so a pixel's value
@@ -26,7 +26,7 @@ import numpy as np
 from tracer.compiled.arrays import borrow_scene
 from tracer.geometry.scene_intersect import material_of, object_of, scene_closest, scene_occluded
 from tracer.integrators import aov, flags
-from tracer.integrators.vertex import SHADERS, camera_path
+from tracer.integrators.vertex import BUILDS, SHADERS, build_name, camera_path
 from tracer.kernel.borrow import borrowed
 from tracer.kernel.jit import jit, with_globals
 from tracer.maths.rng import pixel_key, sample_key
@@ -36,10 +36,10 @@ PIXEL_BLOCK = 32
 """Consecutive pixels a thread renders before skipping to its next block."""
 
 
-def path_kernel(materials: bool, lights: bool):
+def path_kernel(materials: bool, lights: bool, tree: bool):
     """The path kernel compiled with or without the material dispatch and the surface detail
-    (``materials``: BSDFs, textures, vertex normals, normal maps) and the point, spot, sun and
-    sky code (``lights``).
+    (``materials``: BSDFs, textures, vertex normals, normal maps), the point, spot, sun and sky
+    code (``lights``) and the light tree (``tree``).
 
     Both pick the build of the vertex shader the kernel inlines (``vertex.SHADERS``), where
     they are constants: the code they switch off is removed before type inference, so a scene
@@ -184,25 +184,29 @@ def path_kernel(materials: bool, lights: bool):
                     out_aov[row, x, aov.OBJECT_ID] = a_object
                     out_aov[row, x, aov.MATERIAL_ID] = a_material
 
-    trace_pixels.__qualname__ = f"trace_pixels_{'m' if materials else 'l'}{'o' if lights else 't'}"
+    trace_pixels.__qualname__ = f"trace_pixels_{build_name(materials, lights, tree)}"
     return jit(
         with_globals(
-            trace_pixels, shade=SHADERS[(materials, lights)], record_aov=aov.RECORDERS[materials]
+            trace_pixels,
+            shade=SHADERS[(materials, lights, tree)],
+            record_aov=aov.RECORDERS[materials],
         )
     )
 
 
-KERNELS = {(m, o): path_kernel(m, o) for m in (False, True) for o in (False, True)}
-"""The path kernel's four builds, by (materials, lights); ``kernel_for`` picks one for a plan."""
+KERNELS = {build: path_kernel(*build) for build in BUILDS}
+"""The path kernel's eight builds, by (materials, lights, tree); ``kernel_for`` picks one for a
+plan."""
 
 
-def build_for(plan: int) -> tuple[bool, bool]:
-    """The build ``(materials, lights)`` a plan needs: with the material dispatch if it has a
-    material effect or surface detail (or the ``flags.MATERIAL_BUILD`` switch), with the
-    point/spot/sun/sky code if it has one of those lights."""
+def build_for(plan: int) -> tuple[bool, bool, bool]:
+    """The build ``(materials, lights, tree)`` a plan needs: with the material dispatch if it
+    has a material effect or surface detail (or the ``flags.MATERIAL_BUILD`` switch), with the
+    point/spot/sun/sky code if it has one of those lights, with the light tree if it samples
+    with it."""
     materials = (plan & (flags.MATERIAL_EFFECTS | flags.SURFACE_DETAIL | flags.MATERIAL_BUILD)) != 0
     lights = (plan & (flags.POINT_LIGHTS | flags.SUN | flags.SKY)) != 0
-    return materials, lights
+    return materials, lights, (plan & flags.LIGHT_TREE) != 0
 
 
 def kernel_for(plan: int):

@@ -15,10 +15,12 @@ import numpy as np
 
 from tracer import config
 from tracer.compiled.arrays import SceneArrays
+from tracer.compiled.light_tree import light_tree_of
 from tracer.compiled.scene import CompiledScene
 from tracer.integrators import path, stream, surface, vertex
 from tracer.integrators.flags import (
     INDIRECT,
+    LIGHT_TREE,
     NORMAL_MAPS,
     SHADING_NORMALS,
     TEXTURES,
@@ -55,13 +57,15 @@ class Integrator:
 
 def arrays_for_plan(scene: CompiledScene, flags: int) -> SceneArrays:
     """The scene's arrays with only the lights a plan's flags keep (the same arrays when they
-    keep every light the scene has)."""
+    keep every light the scene has), and the light tree when the plan samples with it."""
     kinds = light_kinds(flags)
     present = {int(k) for k in scene.lights.kind[scene.lights.weight > 0.0]}
-    if present <= kinds:
-        return scene.arrays
-    light = light_arrays(scene.lights, kinds)
-    return scene.arrays._replace(**scene_fields(light))
+    arrays = scene.arrays
+    if not present <= kinds:
+        arrays = arrays._replace(**scene_fields(light_arrays(scene.lights, kinds)))
+    if flags & LIGHT_TREE:
+        arrays = arrays._replace(**light_tree_of(scene)._asdict())
+    return arrays
 
 
 def scene_diagonal(scene: CompiledScene) -> float:

@@ -20,7 +20,7 @@ from tracer.compiled.arrays import borrow_scene
 from tracer.geometry.scene_intersect import material_of, scene_closest, scene_occluded
 from tracer.integrators import flags
 from tracer.integrators.path import PIXEL_BLOCK, build_for
-from tracer.integrators.vertex import SHADERS, camera_path
+from tracer.integrators.vertex import BUILDS, SHADERS, build_name, camera_path
 from tracer.kernel.borrow import borrowed
 from tracer.kernel.jit import jit, jit_inline, with_globals
 from tracer.maths.rng import pixel_key, sample_key
@@ -38,18 +38,22 @@ def _load_state(path_f, path_i, q):
     """Path ``q``'s state from the stream's float and integer columns."""
     L = (path_f[q, 6], path_f[q, 7], path_f[q, 8])
     beta = (path_f[q, 9], path_f[q, 10], path_f[q, 11])
-    return L, beta, path_f[q, 12], path_f[q, 13], path_i[q, 2] != 0, path_i[q, 3]
+    prev_p = (path_f[q, 14], path_f[q, 15], path_f[q, 16])
+    prev_n = (path_f[q, 17], path_f[q, 18], path_f[q, 19])
+    return L, beta, path_f[q, 12], path_f[q, 13], path_i[q, 2] != 0, path_i[q, 3], prev_p, prev_n
 
 
 @jit_inline
 def _store_path(path_f, path_i, q, o, d, state):
     """Store the next ray and state of path ``q``."""
-    L, beta, eta_scale, p_bsdf_prev, delta_prev, depth = state
+    L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n = state
     for a in range(3):
         path_f[q, a] = o[a]
         path_f[q, 3 + a] = d[a]
         path_f[q, 6 + a] = L[a]
         path_f[q, 9 + a] = beta[a]
+        path_f[q, 14 + a] = prev_p[a]
+        path_f[q, 17 + a] = prev_n[a]
     path_f[q, 12] = eta_scale
     path_f[q, 13] = p_bsdf_prev
     path_i[q, 2] = 1 if delta_prev else 0
@@ -76,7 +80,7 @@ def _material_runs(s, hit_i, n, order, counts):
         counts[m] += 1
 
 
-def stream_kernel(materials: bool, lights: bool):
+def stream_kernel(materials: bool, lights: bool, tree: bool):
     """The stream kernel for a build of ``shade`` (as ``tracer.integrators.path.path_kernel``);
     the same arguments as the path kernel's."""
 
@@ -97,9 +101,10 @@ def stream_kernel(materials: bool, lights: bool):
         n_blocks = (p1 - p0 + PIXEL_BLOCK - 1) // PIXEL_BLOCK
         batch_blocks = max(1, BATCH_SAMPLES // (PIXEL_BLOCK * spp))
         cap = STREAM_SIZE
-        # The stream: per path its ray (o, d), L, beta, eta_scale, p_bsdf_prev (floats) and its
-        # sample, pixel, delta_prev, depth (integers), its key, its hit and its shadow ray.
-        path_f = np.empty((cap, 14))
+        # The stream: per path its ray (o, d), L, beta, eta_scale, p_bsdf_prev, prev_p, prev_n
+        # (floats) and its sample, pixel, delta_prev, depth (integers), its key, its hit and its
+        # shadow ray.
+        path_f = np.empty((cap, 20))
         path_i = np.empty((cap, 4), np.int64)
         path_key = np.empty(cap, np.uint64)
         hit_f = np.empty((cap, 4))
@@ -224,12 +229,13 @@ def stream_kernel(materials: bool, lights: bool):
                 out_cost[row, x] = pixel_cost[lp]
                 out_rays[row, x] = pixel_rays[lp]
 
-    trace_stream.__qualname__ = f"trace_stream_{'m' if materials else 'l'}{'o' if lights else 't'}"
-    return jit(with_globals(trace_stream, shade=SHADERS[(materials, lights)]))
+    trace_stream.__qualname__ = f"trace_stream_{build_name(materials, lights, tree)}"
+    return jit(with_globals(trace_stream, shade=SHADERS[(materials, lights, tree)]))
 
 
-KERNELS = {(m, o): stream_kernel(m, o) for m in (False, True) for o in (False, True)}
-"""The stream kernel's four builds, by (materials, lights), as ``tracer.integrators.path``'s."""
+KERNELS = {build: stream_kernel(*build) for build in BUILDS}
+"""The stream kernel's eight builds, by (materials, lights, tree), as
+``tracer.integrators.path``'s."""
 
 
 def kernel_for(plan: int):

@@ -9,10 +9,11 @@ radiance if the ray is unblocked, and traces the continuation. Both kernels run 
 function, so the arithmetic of a path is the same whichever kernel traces it: their images are
 bit-identical.
 
-A path's state is ``(L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)``: the radiance so far,
-the throughput, the eta^2 that radiance leaving the media gets back, the density of the BSDF
-sample that led here (for MIS), whether that sample was a delta lobe, and the path's vertex
-count.
+A path's state is ``(L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)``: the
+radiance so far, the throughput, the eta^2 that radiance leaving the media gets back, the
+density of the BSDF sample that led here (for MIS), whether that sample was a delta lobe, the
+path's vertex count, and the previous vertex's point and shading normal (the light tree's
+probability of an emitter a BSDF sample hits depends on them).
 """
 
 import math
@@ -39,6 +40,7 @@ from tracer.shading.bsdf import (
     diffuse_sample,
 )
 from tracer.shading.camera import LENS_DIM
+from tracer.shading.light_tree import NOT_TREE, tree_hit_density, tree_pick
 from tracer.shading.lights import (
     TRIANGLE,
     emission_mean,
@@ -72,7 +74,7 @@ NO_RAY = (0.0, 0.0, 0.0)
 @jit_inline
 def camera_path():
     """The state of a path that leaves the camera."""
-    return BLACK, (1.0, 1.0, 1.0), 1.0, 0.0, False, 1
+    return BLACK, (1.0, 1.0, 1.0), 1.0, 0.0, False, 1, NO_RAY, NO_RAY
 
 
 @jit_inline
@@ -84,12 +86,13 @@ def material_param(mat_param, mat):
 
 
 @jit_inline
-def triangle_light(s, e, u1, u2, p):
+def triangle_light(s, e, u1, u2, p, sel):
     """A point on the emissive triangle of light entry ``e`` (``u1, u2``) as seen from the
     render-space point ``p``: ``(ok, wi, Le, p_light, lk, q_o, q_err, nl_o, n_l)``, the unit
     direction toward it, its emitted radiance, the solid-angle density of this sample
-    (selection probability included), and what spawning the shadow ray's far end needs. ``ok``
-    is False when the point cannot light ``p`` (it faces away, or coincides with ``p``)."""
+    (selection probability included: ``sel`` per unit area, or by power when negative), and
+    what spawning the shadow ray's far end needs. ``ok`` is False when the point cannot light
+    ``p`` (it faces away, or coincides with ``p``)."""
     lk, l_mat, q_o, q_err, nl_o, q, n_l = sample_triangle(s, e, u1, u2)
     to_light = sub(q, p)
     dist2 = dot(to_light, to_light)
@@ -100,8 +103,10 @@ def triangle_light(s, e, u1, u2, p):
     cos_l = -dot(n_l, wi)
     if cos_l == 0.0 or (cos_l < 0.0 and not s.mat_two_sided[l_mat]):
         return False, wi, (0.0, 0.0, 0.0), 0.0, lk, q_o, q_err, nl_o, n_l  # it faces away
-    # Light density in solid angle: (mean emission / total power) dist^2 / |cos_l|.
-    p_light = emission_mean(s.mat_emission, l_mat) / s.light_total[0] * dist2 / abs(cos_l)
+    # Light density in solid angle: (mean emission / total power) dist^2 / |cos_l| by power.
+    if sel < 0.0:
+        sel = emission_mean(s.mat_emission, l_mat) / s.light_total[0]
+    p_light = sel * dist2 / abs(cos_l)
     le = (np.float64(s.mat_emission[l_mat, 0]), np.float64(s.mat_emission[l_mat, 1]),
           np.float64(s.mat_emission[l_mat, 2]))  # fmt: skip
     return True, wi, le, p_light, lk, q_o, q_err, nl_o, n_l
@@ -117,11 +122,11 @@ def triangle_shadow_ray(s, k, p_o, n_o, dist, ng, wi, lk, q_o, q_err, nl_o, n_l)
     return s_o, sub(s_t, s_o)
 
 
-def vertex_shader(materials: bool, lights: bool):
+def vertex_shader(materials: bool, lights: bool, tree: bool):
     """:func:`shade` with or without the material dispatch and the surface detail (``materials``:
-    textures, shading normals, normal maps) and the point, spot, sun and sky code (``lights``):
-    constants of the returned function, so the code they switch off is never compiled into a
-    kernel that inlines it."""
+    textures, shading normals, normal maps), the point, spot, sun and sky code (``lights``) and
+    the light tree (``tree``): constants of the returned function, so the code they switch off
+    is never compiled into a kernel that inlines it."""
 
     def shade(s, key, d, k, j, t, b0, b1, b2, state, mode, plan, max_depth, rr_depth,
               shadow_t_max):  # fmt: skip
@@ -133,12 +138,13 @@ def vertex_shader(materials: bool, lights: bool):
         ``(s_o, s_d)`` up to ``s_t_max`` decides a light sample that adds ``Ld`` to ``L`` when
         unblocked (whether or not the path goes on).
         """
-        L, beta, eta_scale, p_bsdf_prev, delta_prev, depth = state
+        L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n = state
         has_lights = s.light_cdf.shape[0] > 0 and (plan & flags.LIGHT_SAMPLES) != 0
         mis = mode == PATH and (plan & flags.NO_MIS) == 0
         nee_only = mode == PATH and not mis  # emitters that BSDF rays hit are light samples
         general = (plan & flags.MATERIAL_EFFECTS) != 0
         refraction = (plan & flags.REFRACTION) != 0
+        use_tree = (plan & flags.LIGHT_TREE) != 0 and s.light_tree_child.shape[0] > 0
         shadow = False
         s_o = NO_RAY
         s_d = NO_RAY
@@ -153,14 +159,14 @@ def vertex_shader(materials: bool, lights: bool):
                 Le = environment_radiance(s.light_data, s.light_env, s.sky, s.sky_image,
                                           s.sky_rows, s.sky_cols, d, p_w, weighted)  # fmt: skip
                 L = (L[0] + beta[0] * Le[0], L[1] + beta[1] * Le[1], L[2] + beta[2] * Le[2])
-            state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)
+            state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
         mat = material_of(s, k, j)
         p_o, err_o, n_o, p, ng = surface(s, k, j, b0, b1, b2)
         cos_o = -dot(ng, d)
         if cos_o == 0.0 or (cos_o < 0.0 and not s.mat_two_sided[mat]):
             # Grazing, or the back of a one-sided surface: no light at all.
-            state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)
+            state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
         front = cos_o > 0.0
         n = ng if front else (-ng[0], -ng[1], -ng[2])
@@ -192,7 +198,15 @@ def vertex_shader(materials: bool, lights: bool):
             if e_mean > 0.0:
                 w = 1.0
                 if depth > 1 and has_lights and mis and not delta_prev:
-                    p_light = e_mean / s.light_total[0] * t * t / abs(cos_o)
+                    if tree and use_tree:
+                        sel = tree_hit_density(s.light_cdf, s.light_tree_nodes,
+                                               s.light_tree_child, s.light_tree_bits,
+                                               s.light_tree_area, s.light_tree_keys,
+                                               s.light_tree_key_light, k, j, prev_p,
+                                               prev_n)  # fmt: skip
+                    else:
+                        sel = e_mean / s.light_total[0]
+                    p_light = sel * t * t / abs(cos_o)
                     w = power_heuristic(p_bsdf_prev, p_light)
                 elif depth > 1 and has_lights and nee_only and not delta_prev:
                     w = 0.0
@@ -200,7 +214,7 @@ def vertex_shader(materials: bool, lights: bool):
                      L[1] + beta[1] * s.mat_emission[mat, 1] * w,
                      L[2] + beta[2] * s.mat_emission[mat, 2] * w)  # fmt: skip
         if depth >= max_depth or dark:
-            state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)
+            state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
 
         # The material at the vertex.
@@ -220,9 +234,18 @@ def vertex_shader(materials: bool, lights: bool):
         dim = 1 + (depth - 1) * DIMS_PER_VERTEX
 
         # Sample a light (next-event estimation); delta lobes never meet one. Pick one (by
-        # power), then a point or direction on it.
+        # power, or triangles with the light tree), then a point or direction on it.
         if has_lights and not delta:
-            e = pick_light(s, uniform(key, dim))
+            u0 = uniform(key, dim)
+            e = NOT_TREE
+            sel = -1.0
+            if tree and use_tree:
+                e, sel = tree_pick(s.light_cdf, s.light_tree_nodes, s.light_tree_child,
+                                   s.light_tree_area, u0, p, ns)  # fmt: skip
+            if e == NOT_TREE:
+                e = pick_light(s, u0)
+            picked = e >= 0
+            e = max(e, 0)
             u1, u2 = uniform2(key, dim + 1)
             other = lights and s.light_kind[e] != TRIANGLE
             if lights and other:
@@ -232,7 +255,10 @@ def vertex_shader(materials: bool, lights: bool):
                 )  # fmt: skip
                 ok = p_light > 0.0
             else:
-                ok, wi, le, p_light, lk, q_o, q_err, nl_o, n_l = triangle_light(s, e, u1, u2, p)
+                ok, wi, le, p_light, lk, q_o, q_err, nl_o, n_l = triangle_light(
+                    s, e, u1, u2, p, sel
+                )
+                ok = ok and picked
                 delta_l = False
             # The BSDF toward it: f cos, and its density for MIS.
             f = (0.0, 0.0, 0.0)
@@ -267,7 +293,7 @@ def vertex_shader(materials: bool, lights: bool):
                     )
                     s_t_max = shadow_t_max
                 shadow = True
-        state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)
+        state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
         if mode == WHITTED and not delta:
             # Whitted: light at diffuse and glossy surfaces is direct only.
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
@@ -297,7 +323,7 @@ def vertex_shader(materials: bool, lights: bool):
         if pdf <= 0.0:
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
         beta = (beta[0] * weight[0], beta[1] * weight[1], beta[2] * weight[2])
-        state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)
+        state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
         if beta[0] == 0.0 and beta[1] == 0.0 and beta[2] == 0.0:
             # Nothing more can reach the camera along this path.
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
@@ -305,8 +331,10 @@ def vertex_shader(materials: bool, lights: bool):
             eta = param[IOR] if front else 1.0 / param[IOR]
             eta_scale *= eta * eta  # refracted: beta carries 1 / eta^2
         p_bsdf_prev = pdf
+        prev_p = p
+        prev_n = ns
         depth += 1
-        state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)
+        state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
         if nee_only and has_lights and depth >= max_depth and not delta_prev:
             # The last vertex's emission would count 0 without MIS.
             return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
@@ -319,13 +347,22 @@ def vertex_shader(materials: bool, lights: bool):
             if uniform(key, dim + 3) >= q:
                 return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
             beta = (beta[0] / q, beta[1] / q, beta[2] / q)
-        state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth)
+        state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
         o = spawn(s, k, p_o, n_o, dist, ng, wi)
         return True, state, o, wi, shadow, s_o, s_d, s_t_max, Ld
 
-    shade.__qualname__ = f"shade_{'m' if materials else 'l'}{'o' if lights else 't'}"
+    shade.__qualname__ = f"shade_{build_name(materials, lights, tree)}"
     return jit_inline(shade)
 
 
-SHADERS = {(m, o): vertex_shader(m, o) for m in (False, True) for o in (False, True)}
-"""``shade`` for each of the kernel's builds, by (materials, lights)."""
+BUILDS = [(m, o, t) for m in (False, True) for o in (False, True) for t in (False, True)]
+"""The kernels' builds: (materials, lights, tree)."""
+
+
+def build_name(materials: bool, lights: bool, tree: bool) -> str:
+    """A build's suffix of kernel names (their on-disk cache entries differ by it)."""
+    return f"{'m' if materials else 'l'}{'o' if lights else 't'}{'g' if tree else 'p'}"
+
+
+SHADERS = {build: vertex_shader(*build) for build in BUILDS}
+"""``shade`` for each of the kernel's builds, by (materials, lights, tree)."""

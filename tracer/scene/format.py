@@ -18,6 +18,7 @@ from tracer.integrators.names import (
     DENOISE_PREFILTER,
     INTEGRATORS,
     KERNELS,
+    LIGHT_SAMPLERS,
 )
 from tracer.maths import portable
 from tracer.scene.format_animation import (
@@ -365,6 +366,13 @@ class RenderSettings(Strict):
         description="How paths are traced: single (one path at a time), stream (a stream of "
         "paths a stage at a time), or auto (the choice the measured rule makes for the "
         "integrator and scene; docs/performance.md). The same image bit for bit either way",
+    )
+    light_sampler: Literal[LIGHT_SAMPLERS] = Field(
+        default="auto",
+        description="How light samples pick emissive triangles: power (by their power), tree "
+        "(a light tree, by their importance as seen from the point), or auto (the tree where "
+        "the scene has enough emissive triangles to gain; docs/effects.md). The same image in "
+        "expectation either way",
     )
     aovs: bool = Field(
         default=False,
