@@ -36,10 +36,10 @@ PIXEL_BLOCK = 32
 """Consecutive pixels a thread renders before skipping to its next block."""
 
 
-def path_kernel(materials: bool, lights: bool, tree: bool):
-    """The path kernel compiled with or without the material dispatch and the surface detail
-    (``materials``: BSDFs, textures, vertex normals, normal maps), the point, spot, sun and sky
-    code (``lights``) and the light tree (``tree``).
+def path_kernel(materials: bool, lights: bool):
+    """The path kernel compiled with or without the material dispatch, the surface detail and
+    the light tree (``materials``: BSDFs, textures, vertex normals, normal maps, tree picks) and
+    the point, spot, sun and sky code (``lights``).
 
     Both pick the build of the vertex shader the kernel inlines (``vertex.SHADERS``), where
     they are constants: the code they switch off is removed before type inference, so a scene
@@ -184,29 +184,29 @@ def path_kernel(materials: bool, lights: bool, tree: bool):
                     out_aov[row, x, aov.OBJECT_ID] = a_object
                     out_aov[row, x, aov.MATERIAL_ID] = a_material
 
-    trace_pixels.__qualname__ = f"trace_pixels_{build_name(materials, lights, tree)}"
+    trace_pixels.__qualname__ = f"trace_pixels_{build_name(materials, lights)}"
     return jit(
         with_globals(
             trace_pixels,
-            shade=SHADERS[(materials, lights, tree)],
+            shade=SHADERS[(materials, lights)],
             record_aov=aov.RECORDERS[materials],
         )
     )
 
 
 KERNELS = {build: path_kernel(*build) for build in BUILDS}
-"""The path kernel's eight builds, by (materials, lights, tree); ``kernel_for`` picks one for a
-plan."""
+"""The path kernel's four builds, by (materials, lights); ``kernel_for`` picks one for a plan."""
 
 
-def build_for(plan: int) -> tuple[bool, bool, bool]:
-    """The build ``(materials, lights, tree)`` a plan needs: with the material dispatch if it
-    has a material effect or surface detail (or the ``flags.MATERIAL_BUILD`` switch), with the
-    point/spot/sun/sky code if it has one of those lights, with the light tree if it samples
-    with it."""
-    materials = (plan & (flags.MATERIAL_EFFECTS | flags.SURFACE_DETAIL | flags.MATERIAL_BUILD)) != 0
+def build_for(plan: int) -> tuple[bool, bool]:
+    """The build ``(materials, lights)`` a plan needs: with the material dispatch if it has a
+    material effect, surface detail or samples lights with the tree (or has the
+    ``flags.MATERIAL_BUILD`` switch), with the point/spot/sun/sky code if it has one of those
+    lights."""
+    rich = flags.MATERIAL_EFFECTS | flags.SURFACE_DETAIL | flags.LIGHT_TREE | flags.MATERIAL_BUILD
+    materials = (plan & rich) != 0
     lights = (plan & (flags.POINT_LIGHTS | flags.SUN | flags.SKY)) != 0
-    return materials, lights, (plan & flags.LIGHT_TREE) != 0
+    return materials, lights
 
 
 def kernel_for(plan: int):

@@ -80,7 +80,7 @@ def _material_runs(s, hit_i, n, order, counts):
         counts[m] += 1
 
 
-def stream_kernel(materials: bool, lights: bool, tree: bool):
+def stream_kernel(materials: bool, lights: bool):
     """The stream kernel for a build of ``shade`` (as ``tracer.integrators.path.path_kernel``);
     the same arguments as the path kernel's."""
 
@@ -229,13 +229,12 @@ def stream_kernel(materials: bool, lights: bool, tree: bool):
                 out_cost[row, x] = pixel_cost[lp]
                 out_rays[row, x] = pixel_rays[lp]
 
-    trace_stream.__qualname__ = f"trace_stream_{build_name(materials, lights, tree)}"
-    return jit(with_globals(trace_stream, shade=SHADERS[(materials, lights, tree)]))
+    trace_stream.__qualname__ = f"trace_stream_{build_name(materials, lights)}"
+    return jit(with_globals(trace_stream, shade=SHADERS[(materials, lights)]))
 
 
 KERNELS = {build: stream_kernel(*build) for build in BUILDS}
-"""The stream kernel's eight builds, by (materials, lights, tree), as
-``tracer.integrators.path``'s."""
+"""The stream kernel's four builds, by (materials, lights), as ``tracer.integrators.path``'s."""
 
 
 def kernel_for(plan: int):

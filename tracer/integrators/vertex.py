@@ -122,11 +122,11 @@ def triangle_shadow_ray(s, k, p_o, n_o, dist, ng, wi, lk, q_o, q_err, nl_o, n_l)
     return s_o, sub(s_t, s_o)
 
 
-def vertex_shader(materials: bool, lights: bool, tree: bool):
-    """:func:`shade` with or without the material dispatch and the surface detail (``materials``:
-    textures, shading normals, normal maps), the point, spot, sun and sky code (``lights``) and
-    the light tree (``tree``): constants of the returned function, so the code they switch off
-    is never compiled into a kernel that inlines it."""
+def vertex_shader(materials: bool, lights: bool):
+    """:func:`shade` with or without the material dispatch, the surface detail and the light
+    tree (``materials``: BSDFs, textures, shading normals, normal maps, tree picks) and the point,
+    spot, sun and sky code (``lights``): constants of the returned function, so the code they
+    switch off is never compiled into a kernel that inlines it."""
 
     def shade(s, key, d, k, j, t, b0, b1, b2, state, mode, plan, max_depth, rr_depth,
               shadow_t_max):  # fmt: skip
@@ -198,7 +198,7 @@ def vertex_shader(materials: bool, lights: bool, tree: bool):
             if e_mean > 0.0:
                 w = 1.0
                 if depth > 1 and has_lights and mis and not delta_prev:
-                    if tree and use_tree:
+                    if materials and use_tree:
                         sel = tree_hit_density(s.light_cdf, s.light_tree_nodes,
                                                s.light_tree_child, s.light_tree_bits,
                                                s.light_tree_area, s.light_tree_keys,
@@ -239,7 +239,7 @@ def vertex_shader(materials: bool, lights: bool, tree: bool):
             u0 = uniform(key, dim)
             e = NOT_TREE
             sel = -1.0
-            if tree and use_tree:
+            if materials and use_tree:
                 e, sel = tree_pick(s.light_cdf, s.light_tree_nodes, s.light_tree_child,
                                    s.light_tree_area, u0, p, ns)  # fmt: skip
             if e == NOT_TREE:
@@ -351,18 +351,18 @@ def vertex_shader(materials: bool, lights: bool, tree: bool):
         o = spawn(s, k, p_o, n_o, dist, ng, wi)
         return True, state, o, wi, shadow, s_o, s_d, s_t_max, Ld
 
-    shade.__qualname__ = f"shade_{build_name(materials, lights, tree)}"
+    shade.__qualname__ = f"shade_{build_name(materials, lights)}"
     return jit_inline(shade)
 
 
-BUILDS = [(m, o, t) for m in (False, True) for o in (False, True) for t in (False, True)]
-"""The kernels' builds: (materials, lights, tree)."""
+BUILDS = [(m, o) for m in (False, True) for o in (False, True)]
+"""The kernels' builds: (materials, lights)."""
 
 
-def build_name(materials: bool, lights: bool, tree: bool) -> str:
+def build_name(materials: bool, lights: bool) -> str:
     """A build's suffix of kernel names (their on-disk cache entries differ by it)."""
-    return f"{'m' if materials else 'l'}{'o' if lights else 't'}{'g' if tree else 'p'}"
+    return f"{'m' if materials else 'l'}{'o' if lights else 't'}"
 
 
 SHADERS = {build: vertex_shader(*build) for build in BUILDS}
-"""``shade`` for each of the kernel's builds, by (materials, lights, tree)."""
+"""``shade`` for each of the kernel's builds, by (materials, lights)."""
