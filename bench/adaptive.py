@@ -59,8 +59,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def setup(name: str, pixels: int, threads: int | None):
-    """The scene compiled, its camera at the study's size, settings, reference and floor."""
+def setup(name: str, pixels: int, threads: int | None, reference_spp: int | None = None):
+    """The scene compiled, its camera at the study's size, settings, reference and floor; the
+    reference is the scene's independent one, else our own of ``reference_spp`` (default: the
+    accuracy study's)."""
     path = REPO_ROOT / "scenes" / name / "scene.json"
     state = load_scene(path)
     scene = compile_scene(state)
@@ -75,7 +77,7 @@ def setup(name: str, pixels: int, threads: int | None):
             path.parent,
             camera,
             reference_settings(base, options.seed),
-            options.reference_factor * 1024,
+            reference_spp or options.reference_factor * 1024,
             options.reference_passes,
             options.cache_dir,
             threads,

@@ -13,9 +13,8 @@ ratios power / tree, and what ``render.light_sampler`` ``auto`` picks for the sc
 import argparse
 import statistics
 
-from adaptive import TARGET, frame_run, time_to
+from adaptive import TARGET, frame_run, setup, time_to
 from common import (
-    REPO_ROOT,
     machine_info,
     print_machine,
     print_table,
@@ -24,13 +23,8 @@ from common import (
     write_results,
 )
 
-from cli.accuracy import StudyOptions, study_size
-from cli.accuracy_reference import independent_reference, own_reference, reference_settings
-from tracer.accuracy.error_estimate import noise_floor
-from tracer.compiled.scene import compile_scene
 from tracer.integrators.effects import effect_plan
 from tracer.scene import format as fmt
-from tracer.scene.loader import load_scene
 
 SCENES = ("lamp-hall", "many-lights", "veach-mis", "cornell-box")
 SAMPLERS = ("power", "tree")
@@ -51,23 +45,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--reference-spp", type=int, default=4096, help="own references' spp (default 4096)"
     )
     return parser.parse_args(argv)
-
-
-def setup(name: str, pixels: int, threads: int | None, reference_spp: int):
-    """The scene compiled, its camera at the study's size, settings, reference and floor."""
-    path = REPO_ROOT / "scenes" / name / "scene.json"
-    scene = compile_scene(load_scene(path))
-    width, height = study_size(scene.camera.width, scene.camera.height, pixels)
-    camera = fmt.override(scene.camera, width=width, height=height)
-    options = StudyOptions(scenes=())
-    base = fmt.override(scene.render, seed=options.seed, aovs=False, denoise="off")
-    ref, _ = independent_reference(path.parent, width, height, base)
-    if ref is None:
-        settings = reference_settings(base, options.seed)
-        ref = own_reference(
-            scene, path.parent, camera, settings, reference_spp, 16, options.cache_dir, threads
-        )
-    return scene, camera, ref.settings, ref, noise_floor(ref.mean, ref.var_of_mean)
 
 
 def main(argv: list[str] | None = None) -> int:
