@@ -49,14 +49,19 @@ SLOWDOWN = 1.05
 """No scene slower than this with ``auto`` (the default)."""
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", nargs="+", default=list(SCENES), metavar="NAME")
-    parser.add_argument("--repeats", type=int, default=5, help="rounds (default 5)")
+def study_arguments(description: str, scenes: tuple[str, ...], repeats: int):
+    """The options of a time-to-quality benchmark: scenes, rounds, size, threads, spp cap."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--scenes", nargs="+", default=list(scenes), metavar="NAME")
+    parser.add_argument("--repeats", type=int, default=repeats, help=f"rounds (default {repeats})")
     parser.add_argument("--pixels", type=int, default=128 * 96, help="about this many pixels")
     parser.add_argument("--threads", type=int, default=None, help="render threads (all)")
     parser.add_argument("--max-spp", type=int, default=1 << 14, help="cap per frame")
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    return study_arguments(__doc__.split("\n\n")[0], SCENES, 5).parse_args(argv)
 
 
 def setup(name: str, pixels: int, threads: int | None, reference_spp: int | None = None):

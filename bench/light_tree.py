@@ -13,7 +13,7 @@ ratios power / tree, and what ``render.light_sampler`` ``auto`` picks for the sc
 import argparse
 import statistics
 
-from adaptive import TARGET, frame_run, setup, time_to
+from adaptive import TARGET, frame_run, setup, study_arguments, time_to
 from common import (
     machine_info,
     print_machine,
@@ -35,12 +35,7 @@ SLOWDOWN = 1.05
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", nargs="+", default=list(SCENES), metavar="NAME")
-    parser.add_argument("--repeats", type=int, default=3, help="rounds (default 3)")
-    parser.add_argument("--pixels", type=int, default=128 * 96, help="about this many pixels")
-    parser.add_argument("--threads", type=int, default=None, help="render threads (all)")
-    parser.add_argument("--max-spp", type=int, default=1 << 14, help="cap per frame")
+    parser = study_arguments(__doc__.split("\n\n")[0], SCENES, 3)
     parser.add_argument(
         "--reference-spp", type=int, default=4096, help="own references' spp (default 4096)"
     )

@@ -13,7 +13,7 @@ from tracer import config
 from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
-from tracer.scene.gltf_nodes import FileNode, scene_nodes
+from tracer.scene.gltf_nodes import FileNode, finite, scene_nodes
 
 DEFAULT_WIDTH = 640
 
@@ -61,16 +61,12 @@ def _checked(node: FileNode, index: int, spec, where: str) -> FileCameraNode:
     if not isinstance(perspective, dict):
         raise SceneError(f"{where}: a perspective camera needs its perspective object")
     yfov = perspective.get("yfov")
-    if not _number(yfov) or not 0.0 < yfov < math.pi:
+    if not finite(yfov) or not 0.0 < yfov < math.pi:
         raise SceneError(f"{where}: yfov must be a number of radians in (0, pi), not {yfov!r}")
     aspect = perspective.get("aspectRatio", 1.0)
-    if not _number(aspect) or not 0.0 < aspect < math.inf:
+    if not finite(aspect) or not 0.0 < aspect < math.inf:
         raise SceneError(f"{where}: aspectRatio must be a number > 0, not {aspect!r}")
     return FileCameraNode(node, index, name, kind, perspective)
-
-
-def _number(value) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def view(entry: FileCameraNode, placement: np.ndarray, where: str, **image) -> fmt.Camera:

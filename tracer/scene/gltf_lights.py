@@ -11,7 +11,7 @@ import pydantic
 from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
-from tracer.scene.gltf_nodes import FileNode, node_extension, scene_nodes
+from tracer.scene.gltf_nodes import FileNode, finite, node_extension, scene_nodes
 
 EXTENSION = "KHR_lights_punctual"
 LUMENS_PER_WATT = 683.0
@@ -57,16 +57,11 @@ def _colour(spec: dict, where: str) -> np.ndarray:
     colour = spec.get("color", [1.0, 1.0, 1.0])
     intensity = spec.get("intensity", 1.0)
     numbers = colour if isinstance(colour, list) else []
-    if len(numbers) != 3 or not all(_non_negative(c) for c in numbers):
+    if len(numbers) != 3 or not all((finite(c) and c >= 0) for c in numbers):
         raise SceneError(f"{where}: color must be 3 finite numbers >= 0")
-    if not _non_negative(intensity):
+    if not (finite(intensity) and intensity >= 0):
         raise SceneError(f"{where}: intensity must be a finite number >= 0")
     return np.asarray(numbers, np.float64) * (float(intensity) / LUMENS_PER_WATT)
-
-
-def _non_negative(value) -> bool:
-    number = isinstance(value, int | float) and not isinstance(value, bool)
-    return number and math.isfinite(value) and value >= 0
 
 
 def _light(spec, node: FileNode, placement: np.ndarray, where: str):
@@ -113,7 +108,7 @@ def spot_cone(spot, where: str) -> tuple[float, float]:
         raise SceneError(f"{where}: spot must be a JSON object")
     inner = spot.get("innerConeAngle", 0.0)
     outer = spot.get("outerConeAngle", DEFAULT_OUTER_CONE)
-    if not (_non_negative(inner) and _non_negative(outer)):
+    if not (finite(inner) and inner >= 0 and finite(outer) and outer >= 0):
         raise SceneError(f"{where}: spot cone angles must be finite numbers >= 0")
     if not 0.0 < outer <= math.pi / 2.0:
         raise SceneError(f"{where}: outerConeAngle must be in (0, pi/2], not {outer}")

@@ -23,14 +23,16 @@ class FileNode:
     matrix: np.ndarray
 
 
-def _number(value) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+def finite(value) -> bool:
+    """Whether a JSON value is a finite number (not a boolean)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _numbers(value, count: int, where: str) -> list[float]:
+def numbers(value, count: int, where: str) -> list[float]:
+    """A JSON list of ``count`` finite numbers as floats, else a ``SceneError`` at ``where``."""
     if not isinstance(value, list) or len(value) != count:
         raise SceneError(f"{where}: expected {count} numbers")
-    if not all(_number(v) and math.isfinite(v) for v in value):
+    if not all(finite(v) for v in value):
         raise SceneError(f"{where}: expected {count} finite numbers")
     return [float(v) for v in value]
 
@@ -38,12 +40,12 @@ def _numbers(value, count: int, where: str) -> list[float]:
 def local_matrix(spec: dict, where: str) -> np.ndarray:
     """A node's local matrix: ``matrix`` (column-major) or ``T @ R @ S``."""
     if "matrix" in spec:
-        return np.array(_numbers(spec["matrix"], 16, f"{where}.matrix")).reshape(4, 4).T
-    translation = _numbers(spec.get("translation", [0, 0, 0]), 3, f"{where}.translation")
-    x, y, z, w = _numbers(spec.get("rotation", [0, 0, 0, 1]), 4, f"{where}.rotation")
+        return np.array(numbers(spec["matrix"], 16, f"{where}.matrix")).reshape(4, 4).T
+    translation = numbers(spec.get("translation", [0, 0, 0]), 3, f"{where}.translation")
+    x, y, z, w = numbers(spec.get("rotation", [0, 0, 0, 1]), 4, f"{where}.rotation")
     if not math.hypot(x, y, z, w) > 0.0:
         raise SceneError(f"{where}.rotation: a zero quaternion is no rotation")
-    scale = _numbers(spec.get("scale", [1, 1, 1]), 3, f"{where}.scale")
+    scale = numbers(spec.get("scale", [1, 1, 1]), 3, f"{where}.scale")
     return trs_matrix(translation, (w, x, y, z), scale)
 
 

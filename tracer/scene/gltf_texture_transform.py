@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from tracer.errors import SceneError
+from tracer.scene.gltf_nodes import numbers
 
 EXTENSION = "KHR_texture_transform"
 SAMPLED = ("baseColorTexture", "normalTexture")
@@ -29,21 +30,14 @@ def _extension(info: dict) -> dict | None:
     return value if isinstance(value, dict) else None
 
 
-def _numbers(value, count: int, where: str) -> list[float]:
-    ok = isinstance(value, list) and len(value) == count
-    if not ok or not all(isinstance(v, int | float) and math.isfinite(v) for v in value):
-        raise SceneError(f"{where}: expected {count} finite numbers")
-    return [float(v) for v in value]
-
-
 def uv_matrix(info: dict, where: str) -> np.ndarray | None:
     """The 2x3 matrix of a textureInfo's transform in glTF's UV space (v down), or None."""
     transform = _extension(info)
     if transform is None:
         return None
-    ox, oy = _numbers(transform.get("offset", [0.0, 0.0]), 2, f"{where}.offset")
-    (rotation,) = _numbers([transform.get("rotation", 0.0)], 1, f"{where}.rotation")
-    sx, sy = _numbers(transform.get("scale", [1.0, 1.0]), 2, f"{where}.scale")
+    ox, oy = numbers(transform.get("offset", [0.0, 0.0]), 2, f"{where}.offset")
+    (rotation,) = numbers([transform.get("rotation", 0.0)], 1, f"{where}.rotation")
+    sx, sy = numbers(transform.get("scale", [1.0, 1.0]), 2, f"{where}.scale")
     c, s = math.cos(rotation), math.sin(rotation)
     return np.array([[c * sx, s * sy, ox], [-s * sx, c * sy, oy]])
 
