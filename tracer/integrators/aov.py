@@ -2,12 +2,14 @@
 and compositors read, gathered while the beauty is traced (no second camera pass).
 
 Per camera sample the path kernel (``tracer.integrators.path``) records, with the plan's
-``flags.AOVS`` bit:
+``flags.AOVS`` bit, what ``tracer.integrators.vertex.shade`` gives it from the surface evaluation
+it shades with:
 
 - ``albedo`` and ``normal`` at the path's first non-delta vertex, following mirrors, smooth
   conductors and glass as Cycles and Open Image Denoise recommend: the albedo is the colour
   ``bsdf.bsdf_albedo`` gives that vertex (textured), times the colours of the delta vertices
-  before it; the normal is its geometric normal facing the ray. Glass picks reflection or
+  before it; the normal is its shading normal facing the ray (the geometric one where the plan
+  has no shading normals or normal maps), unbent. Glass picks reflection or
   refraction per sample, so the mean over samples is their Fresnel blend. A path that escapes,
   or ends, before such a vertex adds zero to both.
 - ``depth`` (the distance along the camera ray), ``position`` (the world-space point) and
@@ -24,14 +26,6 @@ adds the scene's origin where the camera rays hit.
 """
 
 import numpy as np
-
-from tracer.geometry.scene_intersect import material_of, surface
-from tracer.integrators import flags
-from tracer.integrators.normals import surface_normal
-from tracer.kernel.jit import jit_inline
-from tracer.maths.vecmath import dot
-from tracer.shading.bsdf import DIFFUSE, bsdf_albedo, bsdf_is_delta
-from tracer.shading.textures import textured_albedo
 
 ALBEDO = 0
 NORMAL = 3
@@ -56,44 +50,6 @@ LAYERS = {
     "material_id": MATERIAL_ID,
 }
 """Each AOV layer's columns."""
-
-
-def aov_recorder(materials: bool):
-    """:func:`record` with or without the material dispatch, the textures and the shading
-    normals (``materials``, as in ``tracer.integrators.vertex.vertex_shader``): a constant of the
-    returned function, so a build without them never compiles their look-ups."""
-
-    def record(s, d, k, j, b0, b1, b2, plan):
-        """What a path vertex gives the AOVs: ``(final, colour, normal, point)``. A non-delta
-        vertex is ``final``: ``colour`` is its albedo, ``normal`` its shading normal (the
-        geometric one without the plan's ``SHADING_NORMALS``) facing the ray; a delta vertex
-        passes the colour that tints what lies beyond it. ``point`` is the render-space hit
-        point."""
-        mat = material_of(s, k, j)
-        _, _, _, p, ng = surface(s, k, j, b0, b1, b2)
-        front = dot(ng, d) < 0.0  # the geometric normal decides the side; ns lies on ng's
-        if materials and plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
-            _, ng = surface_normal(s, mat, k, j, b0, b1, b2, ng, plan)
-        n = ng if front else (-ng[0], -ng[1], -ng[2])
-        albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
-                  np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
-        if materials and plan & flags.TEXTURES:
-            albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
-        final = True
-        if materials and plan & flags.MATERIAL_EFFECTS:
-            kind = s.mat_kind[mat]
-            if kind != DIFFUSE:
-                param = s.mat_param[mat]
-                final = not bsdf_is_delta(kind, param)
-                albedo = bsdf_albedo(kind, albedo, param)
-        return final, albedo, n, p
-
-    record.__qualname__ = f"record_{'m' if materials else 'l'}"
-    return jit_inline(record)
-
-
-RECORDERS = {m: aov_recorder(m) for m in (False, True)}
-"""``record`` for each value of the kernels' ``materials`` build switch."""
 
 
 def world_positions(aov: np.ndarray, origin: np.ndarray) -> None:

@@ -131,13 +131,15 @@ def path_kernel(materials: bool, lights: bool):
                         k, j, t, b0, b1, b2, c = scene_closest(s, o, d, np.inf, stack_node, stack_t)
                         cost += c
                         rays += 1
+                        first_hit = state[5] == 1
+                        aov_open = aov_open and k >= 0
+                        go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld, rec = shade(  # noqa: F821 (with_globals binds it)
+                            s, key, d, k, j, t, b0, b1, b2, state, mode, plan, max_depth,
+                            rr_depth, shadow_t_max, aov_open,
+                        )  # fmt: skip
                         if aov_open:
-                            aov_open = k >= 0
-                        if aov_open:
-                            final, colour, n, p = record_aov(  # noqa: F821 (with_globals binds it)
-                                s, d, k, j, b0, b1, b2, plan
-                            )
-                            if state[5] == 1:  # the camera ray's hit
+                            final, colour, n, p = rec
+                            if first_hit:  # the camera ray's hit
                                 a_depth += t
                                 a_point = (a_point[0] + p[0], a_point[1] + p[1], a_point[2] + p[2])
                                 a_hits += 1
@@ -151,10 +153,6 @@ def path_kernel(materials: bool, lights: bool):
                                 a_normal = (a_normal[0] + n[0], a_normal[1] + n[1],
                                             a_normal[2] + n[2])  # fmt: skip
                                 aov_open = False
-                        go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld = shade(  # noqa: F821 (with_globals binds it)
-                            s, key, d, k, j, t, b0, b1, b2, state, mode, plan, max_depth,
-                            rr_depth, shadow_t_max,
-                        )  # fmt: skip
                         if shadow:
                             blocked = False
                             if plan & flags.SHADOWS:
@@ -189,7 +187,6 @@ def path_kernel(materials: bool, lights: bool):
         with_globals(
             trace_pixels,
             shade=SHADERS[(materials, lights)],
-            record_aov=aov.RECORDERS[materials],
         )
     )
 

@@ -171,10 +171,10 @@ def stream_kernel(materials: bool, lights: bool):
                 for r in range(n):
                     q = order[r]
                     d = (path_f[q, 3], path_f[q, 4], path_f[q, 5])
-                    go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld = shade(  # noqa: F821 (with_globals binds it)
+                    go_on, state, o, d, shadow, s_o, s_d, s_t_max, Ld, _ = shade(  # noqa: F821 (with_globals binds it)
                         s, path_key[q], d, hit_i[q, 0], hit_i[q, 1], hit_f[q, 0], hit_f[q, 1],
                         hit_f[q, 2], hit_f[q, 3], _load_state(path_f, path_i, q), mode, plan,
-                        max_depth, rr_depth, shadow_t_max,
+                        max_depth, rr_depth, shadow_t_max, False,
                     )  # fmt: skip
                     _store_path(path_f, path_i, q, o, d, state)
                     going[q] = go_on

@@ -31,6 +31,7 @@ from tracer.shading.bsdf import (
     DIFFUSE,
     IOR,
     SIGMA,
+    bsdf_albedo,
     bsdf_eval,
     bsdf_is_delta,
     bsdf_needs_lobe_choice,
@@ -69,6 +70,8 @@ only through delta lobes)."""
 NO_PARAM = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 BLACK = (0.0, 0.0, 0.0)
 NO_RAY = (0.0, 0.0, 0.0)
+NO_AOV = (False, BLACK, NO_RAY, NO_RAY)
+"""What a vertex gives the AOVs when the path no longer records them."""
 
 
 @jit_inline
@@ -129,14 +132,20 @@ def vertex_shader(materials: bool, lights: bool):
     switch off is never compiled into a kernel that inlines it."""
 
     def shade(s, key, d, k, j, t, b0, b1, b2, state, mode, plan, max_depth, rr_depth,
-              shadow_t_max):  # fmt: skip
+              shadow_t_max, record):  # fmt: skip
         """The vertex where the ray ``d`` of a path with ``state`` hit ``(k, j, t, b0, b1, b2)``
         (``scene_closest``'s hit; ``k < 0`` for a miss).
 
-        Returns ``(go_on, state, o, wi, shadow, s_o, s_d, s_t_max, Ld)``: whether the path goes
-        on, its new state, its next ray (when it goes on), and whether a shadow ray
+        Returns ``(go_on, state, o, wi, shadow, s_o, s_d, s_t_max, Ld, aov)``: whether the path
+        goes on, its new state, its next ray (when it goes on), and whether a shadow ray
         ``(s_o, s_d)`` up to ``s_t_max`` decides a light sample that adds ``Ld`` to ``L`` when
-        unblocked (whether or not the path goes on).
+        unblocked (whether or not the path goes on). With ``record`` (the path still looks for
+        its AOVs' vertex), ``aov`` is what this hit gives the AOVs
+        (``tracer.integrators.aov``): ``(final, colour, normal, point)``, where a non-delta
+        vertex is ``final``, ``colour`` its albedo and ``normal`` its shading normal facing the
+        ray, unbent; a delta vertex's ``colour`` tints what lies beyond it. ``point`` is the
+        render-space hit point. The AOVs read the same surface evaluation as the shading, so
+        its texture and normal look-ups are compiled once.
         """
         L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n = state
         has_lights = s.light_cdf.shape[0] > 0 and (plan & flags.LIGHT_SAMPLES) != 0
@@ -150,6 +159,7 @@ def vertex_shader(materials: bool, lights: bool):
         s_d = NO_RAY
         s_t_max = 0.0
         Ld = BLACK
+        aov = NO_AOV
         # A miss sees the sky and suns.
         if k < 0:
             if lights and plan & (flags.SKY | flags.SUN):
@@ -160,14 +170,15 @@ def vertex_shader(materials: bool, lights: bool):
                                           s.sky_rows, s.sky_cols, d, p_w, weighted)  # fmt: skip
                 L = (L[0] + beta[0] * Le[0], L[1] + beta[1] * Le[1], L[2] + beta[2] * Le[2])
             state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
-            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
+            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
         mat = material_of(s, k, j)
         p_o, err_o, n_o, p, ng = surface(s, k, j, b0, b1, b2)
         cos_o = -dot(ng, d)
-        if cos_o == 0.0 or (cos_o < 0.0 and not s.mat_two_sided[mat]):
-            # Grazing, or the back of a one-sided surface: no light at all.
+        # Grazing, or the back of a one-sided surface: no light at all (the AOVs still see it).
+        blind = cos_o == 0.0 or (cos_o < 0.0 and not s.mat_two_sided[mat])
+        if blind and not record:
             state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
-            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
+            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
         front = cos_o > 0.0
         n = ng if front else (-ng[0], -ng[1], -ng[2])
         wo = (-d[0], -d[1], -d[2])
@@ -178,10 +189,35 @@ def vertex_shader(materials: bool, lights: bool):
         if materials and plan & (flags.SHADING_NORMALS | flags.NORMAL_MAPS):
             smooth, ns = surface_normal(s, mat, k, j, b0, b1, b2, ng, plan)
             ns = ns if front else (-ns[0], -ns[1], -ns[2])
-            if smooth and plan & flags.NORMAL_BENDING:
-                ns = bent_normal(ns, n, wo)
+        aov_normal = ns
+        if smooth and plan & flags.NORMAL_BENDING:
+            ns = bent_normal(ns, n, wo)
         # Unbent, a viewer below the shading normal sees no scattered light (Mitsuba's rule).
         dark = materials and smooth and dot(wo, ns) <= 0.0
+
+        # The material at the vertex, where it scatters or the AOVs look at it.
+        albedo = BLACK
+        kind = DIFFUSE
+        param = NO_PARAM
+        delta = False
+        if record or not (blind or dark or depth >= max_depth):
+            albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
+                      np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
+            if materials and plan & flags.TEXTURES:
+                albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
+            if materials and general:
+                kind = s.mat_kind[mat]
+                if kind != DIFFUSE:
+                    param = material_param(s.mat_param, mat)
+                    delta = bsdf_is_delta(kind, param)
+        if record:
+            colour = albedo
+            if materials and kind != DIFFUSE:
+                colour = bsdf_albedo(kind, albedo, param)
+            aov = (not delta, colour, aov_normal, p)
+            if blind:
+                state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
+                return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
 
         # Absorb along a segment inside a dielectric (Beer-Lambert).
         if materials and plan & flags.ABSORPTION and not front:
@@ -215,22 +251,8 @@ def vertex_shader(materials: bool, lights: bool):
                      L[2] + beta[2] * s.mat_emission[mat, 2] * w)  # fmt: skip
         if depth >= max_depth or dark:
             state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
-            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
-
-        # The material at the vertex.
+            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
         dist = offset_distance(s, k, p_o, err_o, n_o)
-        albedo = (np.float64(s.mat_albedo[mat, 0]), np.float64(s.mat_albedo[mat, 1]),
-                  np.float64(s.mat_albedo[mat, 2]))  # fmt: skip
-        if materials and plan & flags.TEXTURES:
-            albedo = textured_albedo(s, mat, albedo, k, j, b0, b1, b2)
-        kind = DIFFUSE
-        param = NO_PARAM
-        delta = False
-        if materials and general:
-            kind = s.mat_kind[mat]
-            if kind != DIFFUSE:
-                param = material_param(s.mat_param, mat)
-                delta = bsdf_is_delta(kind, param)
         dim = 1 + (depth - 1) * DIMS_PER_VERTEX
 
         # Sample a light (next-event estimation); delta lobes never meet one. Pick one (by
@@ -296,10 +318,10 @@ def vertex_shader(materials: bool, lights: bool):
         state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
         if mode == WHITTED and not delta:
             # Whitted: light at diffuse and glossy surfaces is direct only.
-            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
+            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
         if depth + 1 >= max_depth and not plan & flags.EMITTER_HITS:
             # The last ray could only find emission, and nothing emits.
-            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
+            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
 
         # Sample the BSDF for the next direction and update the throughput.
         u1, u2 = uniform2(key, dim + 2)
@@ -321,12 +343,12 @@ def vertex_shader(materials: bool, lights: bool):
                 g = terminator(ns, n, wi)
                 weight = (weight[0] * g, weight[1] * g, weight[2] * g)
         if pdf <= 0.0:
-            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
+            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
         beta = (beta[0] * weight[0], beta[1] * weight[1], beta[2] * weight[2])
         state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
         if beta[0] == 0.0 and beta[1] == 0.0 and beta[2] == 0.0:
             # Nothing more can reach the camera along this path.
-            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
+            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
         if kind == DIELECTRIC and dot(wi, n) * dot(wo, n) < 0.0:
             eta = param[IOR] if front else 1.0 / param[IOR]
             eta_scale *= eta * eta  # refracted: beta carries 1 / eta^2
@@ -337,7 +359,7 @@ def vertex_shader(materials: bool, lights: bool):
         state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
         if nee_only and has_lights and depth >= max_depth and not delta_prev:
             # The last vertex's emission would count 0 without MIS.
-            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
+            return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
 
         # Russian roulette: survive with probability q and divide by it (unbiased), q from the
         # throughput the path has once out of any glass (pbrt-v4's etaScale): inside, beta is
@@ -345,11 +367,11 @@ def vertex_shader(materials: bool, lights: bool):
         if depth > rr_depth:
             q = min(0.95, max_component(beta) * eta_scale)
             if uniform(key, dim + 3) >= q:
-                return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld
+                return False, state, NO_RAY, NO_RAY, shadow, s_o, s_d, s_t_max, Ld, aov
             beta = (beta[0] / q, beta[1] / q, beta[2] / q)
         state = (L, beta, eta_scale, p_bsdf_prev, delta_prev, depth, prev_p, prev_n)
         o = spawn(s, k, p_o, n_o, dist, ng, wi)
-        return True, state, o, wi, shadow, s_o, s_d, s_t_max, Ld
+        return True, state, o, wi, shadow, s_o, s_d, s_t_max, Ld, aov
 
     shade.__qualname__ = f"shade_{build_name(materials, lights)}"
     return jit_inline(shade)
