@@ -1,14 +1,45 @@
-"""Fixtures shared by the test suite."""
+"""Fixtures shared by the test suite, and the kernel warmer of long runs."""
+
+import os
+import subprocess
+import sys
 
 import pytest
 from hypothesis import HealthCheck, settings
 
-from tests.helpers import CORNELL, tiny_scene, write_json
+from tests.helpers import CORNELL, ROOT, tiny_scene, write_json
+
+WARM_FROM = 300
+"""Runs of this many tests or more start ``tests/kernel_warmer.py`` beside them
+(``TILERENDER_TEST_WARMER=off`` never does)."""
+WARMER = pytest.StashKey[subprocess.Popen]()
 
 # Kernels compile on first use (cached on disk afterwards): no per-example deadline, and the
 # example counts are set per test, kept small so the suite stays fast on two cores.
 settings.register_profile("tilerender", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("tilerender")
+
+
+def pytest_collection_finish(session):
+    """Start the kernel warmer for a long run."""
+    if len(session.items) < WARM_FROM or os.environ.get("TILERENDER_TEST_WARMER") == "off":
+        return
+    import tracer  # noqa: F401 (sets NUMBA_CACHE_DIR, which the warmer inherits)
+
+    session.config.stash[WARMER] = subprocess.Popen(
+        [sys.executable, "-m", "tests.kernel_warmer"],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+
+def pytest_sessionfinish(session):
+    """Stop the kernel warmer if it is still compiling."""
+    warmer = session.config.stash.get(WARMER, None)
+    if warmer is not None:
+        warmer.terminate()
+        warmer.wait()
 
 
 @pytest.fixture(scope="session")
