@@ -227,9 +227,9 @@ def test_guides_are_prefiltered_at_most_at_balanced(monkeypatch):
     calls = []
     run_filter = denoise_module._run_filter
 
-    def recording(pyoidn, entry, images, options):
+    def recording(entry, images, options):
         calls.append((tuple(k for k in images if k != "output"), options["quality"]))
-        return run_filter(pyoidn, entry, images, options)
+        return run_filter(entry, images, options)
 
     monkeypatch.setattr(denoise_module, "_run_filter", recording)
     levels = {"fast": 4, "balanced": 5, "high": 6}

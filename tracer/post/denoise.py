@@ -5,10 +5,11 @@ guided by an albedo and a normal image. Noisy guides (a path tracer's first-hit 
 normal at low spp) are prefiltered as OIDN's documentation recommends: each guide is denoised
 by its own ``RT`` filter first, and the beauty is then denoised with ``cleanAux``. One
 committed OIDN device per thread count is kept for the life of the process and shared by every
-call (creating one is slow), each behind its own lock, so concurrent calls are serialised per
-device. OIDN's output is deterministic on one machine, but may differ slightly between CPUs with
-different instruction sets (AVX2, AVX-512, AMX), since each runs its own kernels. Figures and
-the reading of the qualities and guides: ``docs/denoising.md``.
+call (creating one is slow), with its filters (``tracer.post.oidn_filters``), each behind its own
+lock, so concurrent calls are serialised per device. OIDN's output is deterministic on one
+machine, but may differ slightly between CPUs with different instruction sets (AVX2, AVX-512,
+AMX), since each runs its own kernels. Figures and the reading of the qualities and guides:
+``docs/denoising.md``.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 
 from tracer.errors import TilerenderError
 from tracer.kernel.threads import default_threads
+from tracer.post.oidn_filters import FilterCache
 
 QUALITIES = ("fast", "balanced", "high")
 """``quality``'s choices, OIDN's ``OIDN_QUALITY_FAST``, ``_BALANCED`` and ``_HIGH``."""
@@ -58,7 +60,8 @@ class Denoised:
 @dataclass
 class _Device:
     device: object  # pyoidn.Device, committed
-    lock: threading.Lock
+    lock: threading.Lock  # held for every use of the device and its filters
+    filters: FilterCache
 
 
 _devices: dict[int, _Device] = {}
@@ -98,7 +101,7 @@ def _device(pyoidn: ModuleType, threads: int) -> _Device:
             error = device.get_error()
         if error is not None:
             raise DenoiserUnavailable(f"OIDN could not create a CPU device: {error}")
-        entry = _devices[threads] = _Device(device, threading.Lock())
+        entry = _devices[threads] = _Device(device, threading.Lock(), FilterCache(pyoidn, device))
         return entry
 
 
@@ -118,25 +121,10 @@ def _check_image(name: str, array: object, shape: tuple[int, ...] | None) -> np.
     return image
 
 
-def _run_filter(pyoidn: ModuleType, entry: _Device, images: dict, options: dict) -> None:
-    """Run one ``RT`` filter over ``images`` (name -> float32 array) with bool ``options``."""
-    device = entry.device
-    filter_ = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
-    try:
-        for name, image in images.items():
-            filter_.set_image(name, image, pyoidn.OIDN_FORMAT_FLOAT3)
-        for name, value in options.items():
-            if name == "quality":
-                filter_.set_quality(value)
-            else:
-                filter_.set_bool(name, value)
-        filter_.commit()
-        error = device.get_error()
-        if error is None:
-            filter_.execute()
-            error = device.get_error()
-    finally:
-        filter_.release()
+def _run_filter(entry: _Device, images: dict, options: dict) -> None:
+    """Run an ``RT`` filter of ``entry``'s over ``images`` (name -> float32 array) with
+    ``options``, or raise DenoiseFailed."""
+    error = entry.filters.run(images, options)
     if error is not None:
         raise DenoiseFailed(f"OIDN failed to denoise ({', '.join(images)}): {error}")
 
@@ -193,10 +181,10 @@ def denoise(
     with entry.lock:
         if prefiltered:
             for name, guide in guides.items():  # in place: the guides are this call's copies
-                _run_filter(pyoidn, entry, {name: guide, "output": guide}, {"quality": guide_level})
+                _run_filter(entry, {name: guide, "output": guide}, {"quality": guide_level})
         images = {"color": color, **guides, "output": output}
         options = {"hdr": True, "cleanAux": prefiltered, "quality": level}
-        _run_filter(pyoidn, entry, images, options)
+        _run_filter(entry, images, options)
     return Denoised(
         image=output,
         seconds=time.perf_counter() - start,
