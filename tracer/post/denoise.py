@@ -28,6 +28,9 @@ from tracer.post.oidn_filters import FilterCache
 QUALITIES = ("fast", "balanced", "high")
 """``quality``'s choices, OIDN's ``OIDN_QUALITY_FAST``, ``_BALANCED`` and ``_HIGH``."""
 
+GUIDES = ("albedo", "normal")
+"""The guides ``denoise`` takes, and may prefilter."""
+
 _OIDN_QUALITY = {"fast": 4, "balanced": 5, "high": 6}  # the values of OIDNQuality (oidn.h)
 
 PREFILTER_QUALITY = {"fast": "fast", "balanced": "balanced", "high": "balanced"}
@@ -54,7 +57,8 @@ class Denoised:
     seconds: float  # the whole call, validation and prefiltering included
     quality: str  # one of QUALITIES
     guides: tuple[str, ...]  # (), ("albedo",) or ("albedo", "normal")
-    prefiltered: bool  # the guides were denoised first and the beauty with cleanAux
+    prefiltered: bool  # guides were denoised first and the beauty with cleanAux
+    prefiltered_guides: tuple[str, ...] = ()  # which guides were denoised first
 
 
 @dataclass
@@ -135,16 +139,17 @@ def denoise(
     normal: np.ndarray | None = None,
     quality: str = "high",
     threads: int | None = None,
-    prefilter: bool = True,
+    prefilter: bool | tuple[str, ...] = True,
     prefilter_quality: str | None = None,
 ) -> Denoised:
     """Denoise a linear HDR ``beauty`` (H, W, 3) with OIDN's ``RT`` filter on the CPU.
 
     ``albedo`` (clamped to [0, 1]) and ``normal`` (world space, in [-1, 1]) are optional guides
-    of the same shape; a normal needs an albedo. With ``prefilter`` the guides are denoised
+    of the same shape; a normal needs an albedo. With ``prefilter`` True the guides are denoised
     first (at ``prefilter_quality``, default ``PREFILTER_QUALITY[quality]``) and the beauty
-    with ``cleanAux``; without it OIDN
-    takes them as they are (right for noise-free guides). ``threads`` defaults to the CPUs this
+    with ``cleanAux``; a tuple of guide names (``GUIDES``) prefilters only those of them given,
+    the others counted clean as they are; with False OIDN takes the guides as they are, noisy
+    (right for noise-free guides, and cheapest). ``threads`` defaults to the CPUs this
     process may use. The caller's arrays are never modified. Raises ValueError for bad input,
     DenoiserUnavailable when pyoidn or OIDN's CPU device is missing, DenoiseFailed when OIDN
     reports an error.
@@ -157,6 +162,10 @@ def denoise(
         raise ValueError(
             f"prefilter_quality must be one of {', '.join(QUALITIES)}, not {prefilter_quality!r}"
         )
+    if not isinstance(prefilter, bool) and (
+        not isinstance(prefilter, tuple) or not set(prefilter) <= set(GUIDES)
+    ):
+        raise ValueError(f"prefilter must be a bool or a tuple of {GUIDES}, not {prefilter!r}")
     if threads is not None and (
         isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
     ):
@@ -177,18 +186,20 @@ def denoise(
     level = _OIDN_QUALITY[quality]
     guide_level = _OIDN_QUALITY[prefilter_quality]
     output = np.empty_like(color)
-    prefiltered = prefilter and bool(guides)
+    chosen = GUIDES if prefilter is True else prefilter or ()
+    prefiltered = tuple(name for name in guides if name in chosen)
     with entry.lock:
-        if prefiltered:
-            for name, guide in guides.items():  # in place: the guides are this call's copies
-                _run_filter(entry, {name: guide, "output": guide}, {"quality": guide_level})
+        for name in prefiltered:  # in place: the guides are this call's copies
+            guide = guides[name]
+            _run_filter(entry, {name: guide, "output": guide}, {"quality": guide_level})
         images = {"color": color, **guides, "output": output}
-        options = {"hdr": True, "cleanAux": prefiltered, "quality": level}
+        options = {"hdr": True, "cleanAux": bool(prefiltered), "quality": level}
         _run_filter(entry, images, options)
     return Denoised(
         image=output,
         seconds=time.perf_counter() - start,
         quality=quality,
         guides=tuple(guides),
-        prefiltered=prefiltered,
+        prefiltered=bool(prefiltered),
+        prefiltered_guides=prefiltered,
     )
