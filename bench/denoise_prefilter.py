@@ -1,6 +1,6 @@
 """What prefiltering the guides buys: error and seconds of the OIDN denoiser
 (``tracer.post.denoise``) for each quality of the beauty, with the guides taken as they are
-(``off``) or prefiltered at each quality.
+(``off``), the albedo alone prefiltered (``albedo``), or both prefiltered at each quality.
 
 Each scene (``--scenes``) is rendered at ``--size`` and at each of ``--spp`` with its AOVs (the
 guides), and at ``--reference-spp`` without; then every (quality, prefilter) pair denoises the
@@ -54,8 +54,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-PREFILTERS = ("off", "fast", "balanced", "high")
-"""The guides taken as they are, or prefiltered at a quality."""
+PREFILTERS = ("off", "albedo", "fast", "balanced", "high")
+"""The guides taken as they are, the albedo alone prefiltered (at ``PREFILTER_QUALITY``, the
+normal counted clean), or both prefiltered at a quality."""
 
 
 def frames(name: str, args: argparse.Namespace) -> tuple[np.ndarray, dict[int, dict]]:
@@ -66,15 +67,16 @@ def frames(name: str, args: argparse.Namespace) -> tuple[np.ndarray, dict[int, d
     return reference, {spp: guides(render(spp, True)) for spp in args.spp}
 
 
-def auto_prefilters(name: str) -> bool:
-    """Whether ``render.denoise_prefilter`` ``auto`` prefilters scene ``name``'s guides."""
+def auto_prefilters(name: str) -> str:
+    """What ``render.denoise_prefilter`` ``auto`` makes of scene ``name``: on, albedo or off."""
     from denoise import REPO_ROOT
 
-    from tracer.post.guides import guides_are_noisy
+    from tracer.post.guides import resolve_prefilter
     from tracer.scene.loader import load_scene
 
     state = load_scene(str(REPO_ROOT / "scenes" / name / "scene.json"))
-    return guides_are_noisy(state.materials.values(), state.camera)
+    settings = resolve_prefilter(state.render, state.materials.values(), state.camera)
+    return settings.denoise_prefilter
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -99,8 +101,8 @@ def main(argv: list[str] | None = None) -> None:
                         f["normal"],
                         quality=quality,
                         threads=args.threads,
-                        prefilter=prefilter != "off",
-                        prefilter_quality=None if prefilter == "off" else prefilter,
+                        prefilter={"off": False, "albedo": ("albedo",)}.get(prefilter, True),
+                        prefilter_quality=None if prefilter in ("off", "albedo") else prefilter,
                     )
 
                 key = f"{quality}/{prefilter}"
@@ -111,7 +113,7 @@ def main(argv: list[str] | None = None) -> None:
             for key, measured in series.items():
                 quality, prefilter = key.split("/")
                 error = rel_mse(outputs[key], reference)
-                chosen = prefilter == (PREFILTER_QUALITY[quality] if auto else "off")
+                chosen = prefilter == (PREFILTER_QUALITY[quality] if auto == "on" else auto)
                 results.append(
                     {
                         "scene": name,
