@@ -91,10 +91,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def frame_renderer(name: str, width: int, height: int, threads: int):
+def frame_renderer(name: str, width: int, height: int, threads: int, **camera_fields):
     """``render(spp, aovs)``: scene ``name`` (a folder of ``scenes/``) rendered whole at
-    ``width`` x ``height`` (``tracer.render.render_pixels``), and ``guides(out)``: the beauty,
-    albedo and normal of a render with AOVs, (H, W, 3) each."""
+    ``width`` x ``height`` (``tracer.render.render_pixels``; ``camera_fields`` override the
+    scene's camera's, e.g. a lens), and ``guides(out)``: the beauty, albedo and normal of a
+    render with AOVs, (H, W, 3) each."""
     from tracer.compiled.scene import compile_scene
     from tracer.integrators.aov import aov_layers
     from tracer.render import render_pixels
@@ -102,7 +103,7 @@ def frame_renderer(name: str, width: int, height: int, threads: int):
     from tracer.scene.loader import load_scene
 
     scene = compile_scene(load_scene(REPO_ROOT / "scenes" / name / "scene.json"))
-    camera = override(scene.camera, width=width, height=height)
+    camera = override(scene.camera, width=width, height=height, **camera_fields)
 
     def render(spp: int, aovs: bool):
         settings = override(scene.render, spp=spp, aovs=aovs)

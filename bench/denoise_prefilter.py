@@ -46,6 +46,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--reference-spp", type=int, default=256, help="spp of the references")
     parser.add_argument("--repeats", type=int, default=3, help="timed rounds")
     parser.add_argument("--threads", type=int, default=usable_cores(), help="threads")
+    parser.add_argument(
+        "--lens",
+        type=float,
+        nargs=2,
+        metavar=("RADIUS", "FOCUS"),
+        help="give every scene's camera this aperture radius and focus distance (depth of field)",
+    )
     args = parser.parse_args(argv)
     width, _, height = args.size.partition("x")
     args.width, args.height = int(width), int(height)
@@ -62,21 +69,30 @@ normal counted clean), or both prefiltered at a quality."""
 def frames(name: str, args: argparse.Namespace) -> tuple[np.ndarray, dict[int, dict]]:
     """The reference of scene ``name``, and for each of ``--spp`` the beauty (``path``) and its
     albedo and normal AOVs."""
-    render, guides = frame_renderer(name, args.width, args.height, args.threads)
+    render, guides = frame_renderer(name, args.width, args.height, args.threads, **lens(args))
     reference = render(args.reference_spp, False).rgb.reshape(args.height, args.width, 3)
     return reference, {spp: guides(render(spp, True)) for spp in args.spp}
 
 
-def auto_prefilters(name: str) -> str:
-    """What ``render.denoise_prefilter`` ``auto`` makes of scene ``name``: on, albedo or off."""
+def lens(args: argparse.Namespace) -> dict:
+    """The camera fields ``--lens`` sets (none without it)."""
+    if args.lens is None:
+        return {}
+    return {"aperture_radius": args.lens[0], "focus_distance": args.lens[1]}
+
+
+def auto_prefilters(name: str, args: argparse.Namespace) -> str:
+    """What ``render.denoise_prefilter`` ``auto`` makes of scene ``name`` (with ``--lens``):
+    on, albedo or off."""
     from denoise import REPO_ROOT
 
     from tracer.post.guides import resolve_prefilter
+    from tracer.scene.format import override
     from tracer.scene.loader import load_scene
 
     state = load_scene(str(REPO_ROOT / "scenes" / name / "scene.json"))
-    settings = resolve_prefilter(state.render, state.materials.values(), state.camera)
-    return settings.denoise_prefilter
+    camera = override(state.camera, **lens(args))
+    return resolve_prefilter(state.render, state.materials.values(), camera).denoise_prefilter
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -89,7 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     results, rows = [], []
     for name in args.scenes:
         reference, by_spp = frames(name, args)
-        auto = auto_prefilters(name)
+        auto = auto_prefilters(name, args)
         for spp, f in by_spp.items():
             contenders, outputs = {}, {}
             for quality, prefilter in itertools.product(QUALITIES, PREFILTERS):
@@ -139,7 +155,8 @@ def main(argv: list[str] | None = None) -> None:
                 )
     print_table(
         f"OIDN guided by the AOVs, as they are or prefiltered, {args.size}, {args.threads} "
-        f"threads, {args.repeats} rounds; relMSE against {args.reference_spp} spp",
+        f"threads, {args.repeats} rounds; relMSE against {args.reference_spp} spp"
+        + (f"; lens {args.lens[0]:g} focused at {args.lens[1]:g}" if args.lens else ""),
         ["scene", "spp", "quality", "prefilter", "median s", "relMSE", "raw relMSE"],
         rows,
     )

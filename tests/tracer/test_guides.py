@@ -5,12 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from tracer.post.guides import (
-    guides_are_noisy,
-    noisy_guides,
-    prefilter_argument,
-    resolve_prefilter,
-)
+from tracer.post.guides import noisy_guides, prefilter_argument, resolve_prefilter
 from tracer.scene import format as fmt
 from tracer.scene.loader import load_scene
 
@@ -26,13 +21,13 @@ def scene_state(name: str):
 )
 def test_textures_make_the_guides_noisy(name, noisy):
     state = scene_state(name)
-    assert guides_are_noisy(state.materials.values(), state.camera) is noisy
+    assert bool(noisy_guides(state.materials.values(), state.camera)) is noisy
 
 
 def test_a_lens_aperture_makes_the_guides_noisy():
     state = scene_state("cornell-box")
     lens = fmt.override(state.camera, aperture_radius=0.01, focus_distance=3.0)
-    assert guides_are_noisy(state.materials.values(), lens)
+    assert noisy_guides(state.materials.values(), lens) == ("albedo", "normal")
 
 
 def test_textures_alone_make_the_albedo_noisy_and_a_lens_both():

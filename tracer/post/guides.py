@@ -33,12 +33,6 @@ def noisy_guides(materials: Iterable[fmt.Material], camera: fmt.Camera) -> tuple
     return ("albedo",) if _textured(materials, "texture") else ()
 
 
-def guides_are_noisy(materials: Iterable[fmt.Material], camera: fmt.Camera) -> bool:
-    """Whether any guide of ``camera``'s view of a scene with ``materials`` is noisy
-    (:func:`noisy_guides`)."""
-    return bool(noisy_guides(materials, camera))
-
-
 def resolve_prefilter(
     settings: fmt.RenderSettings, materials: Iterable[fmt.Material], camera: fmt.Camera
 ) -> fmt.RenderSettings:
