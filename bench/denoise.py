@@ -3,10 +3,11 @@
 A sample scene (``--scene``, the Cornell box by default) is rendered at each size in
 ``--sizes`` by the path tracer at ``--spp`` samples with its albedo and normal AOVs (the guides,
 as noisy as a render's). With ``--render-spp``, a render of each frame at that spp is timed
-with and without AOVs (what recording them costs, and the denoiser's share of a render). Then,
+with and without AOVs (what recording them costs), and timed again with AOVs in every round
+of the contenders (the denoiser's share of a render, from runs adjacent in time). Then,
 after one warm-up each, every contender (size x quality x
-beauty only / both guides as they are / both prefiltered) denoises its frame once per round,
-in turns, for
+beauty only / both guides as they are / the albedo prefiltered / both prefiltered) denoises its
+frame once per round, in turns, for
 ``--repeats`` rounds. Reported: median and best seconds, and frames per second at the smallest
 size. The first call of the process is timed apart (it creates OIDN's device). With
 ``--reference-spp``, the smallest frame's relative MSE against a render at that spp says what
@@ -33,9 +34,19 @@ from common import (
 GUIDES = {
     "beauty": "none",
     "guided": "albedo+normal",
+    "albedo prefiltered": "albedo+normal, albedo prefiltered",
     "prefiltered": "albedo+normal, prefiltered",
 }
-"""The contenders' guides: none, the AOVs as they are, the AOVs prefiltered."""
+"""The contenders' guides: none, the AOVs as they are, the albedo alone prefiltered (``auto``
+with textures only), both prefiltered (``auto`` with a lens or a normal map)."""
+
+PREFILTER = {
+    "beauty": False,
+    "guided": False,
+    "albedo prefiltered": ("albedo",),
+    "prefiltered": True,
+}
+"""``denoise``'s ``prefilter`` for each contender."""
 
 
 def size(text: str) -> tuple[int, int]:
@@ -80,10 +91,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def frame_renderer(name: str, width: int, height: int, threads: int):
+def frame_renderer(name: str, width: int, height: int, threads: int, **camera_fields):
     """``render(spp, aovs)``: scene ``name`` (a folder of ``scenes/``) rendered whole at
-    ``width`` x ``height`` (``tracer.render.render_pixels``), and ``guides(out)``: the beauty,
-    albedo and normal of a render with AOVs, (H, W, 3) each."""
+    ``width`` x ``height`` (``tracer.render.render_pixels``; ``camera_fields`` override the
+    scene's camera's, e.g. a lens), and ``guides(out)``: the beauty, albedo and normal of a
+    render with AOVs, (H, W, 3) each."""
     from tracer.compiled.scene import compile_scene
     from tracer.integrators.aov import aov_layers
     from tracer.render import render_pixels
@@ -91,7 +103,7 @@ def frame_renderer(name: str, width: int, height: int, threads: int):
     from tracer.scene.loader import load_scene
 
     scene = compile_scene(load_scene(REPO_ROOT / "scenes" / name / "scene.json"))
-    camera = override(scene.camera, width=width, height=height)
+    camera = override(scene.camera, width=width, height=height, **camera_fields)
 
     def render(spp: int, aovs: bool):
         settings = override(scene.render, spp=spp, aovs=aovs)
@@ -123,6 +135,7 @@ def render_frames(args: argparse.Namespace, width: int, height: int) -> dict[str
         for _ in range(2):
             for aovs in (False, True):
                 times[aovs].append(render(args.render_spp, aovs).seconds)
+        frames["render"] = lambda _round: render(args.render_spp, True)
         frames["render_seconds"] = float(np.median(times[True]))
         frames["render_seconds_plain"] = float(np.median(times[False]))
         console.print(
@@ -160,7 +173,7 @@ def main(argv: list[str] | None = None) -> None:
                 name = f"{s[0]}x{s[1]} {quality} {guides}"
                 f = frames[s]
                 extra = (f["albedo"], f["normal"]) if guides != "beauty" else ()
-                prefilter = guides == "prefiltered"
+                prefilter = PREFILTER[guides]
 
                 def run(_round, f=f, extra=extra, quality=quality, prefilter=prefilter):
                     return denoise(
@@ -175,7 +188,11 @@ def main(argv: list[str] | None = None) -> None:
                 work[name] = 1.0  # frames
                 keys[name] = (s, quality, guides)
     warm = {name: c.run(-1) for name, c in contenders.items()}  # one warm-up each
+    renders = {s: f"{s[0]}x{s[1]} render" for s in args.sizes if "render" in frames[s]}
+    for s, name in renders.items():  # in the rounds too: shares of runs adjacent in time
+        contenders[name], work[name] = Contender(frames[s]["render"]), 1.0
     series = interleaved(contenders, work, args.repeats)
+    in_rounds = {s: series.pop(name) for s, name in renders.items()}
 
     results, rows = [], []
     for name, measured in series.items():
@@ -184,8 +201,11 @@ def main(argv: list[str] | None = None) -> None:
         error = None
         if reference is not None:
             error = rel_mse(warm[name].image, reference)
-        render_seconds = frames[s].get("render_seconds")
-        share = None if render_seconds is None else measured.median_seconds / render_seconds
+        render = in_rounds.get(s)
+        share = None
+        if render is not None:  # the median of the rounds' own shares
+            paired = np.divide(measured.seconds, render.seconds)
+            share = float(np.median(paired))
         entry = {
             "size": list(s),
             "quality": quality,
@@ -230,7 +250,11 @@ def main(argv: list[str] | None = None) -> None:
         caption=f"first call of the process (device creation): {first_call:.3f} s; guides from "
         f"the albedo and normal AOVs at {args.spp} spp; relMSE against "
         f"{args.reference_spp} spp"
-        + ("" if noisy_error is None else f" (the noisy frame: {noisy_error:.4f})"),
+        + ("" if noisy_error is None else f" (the noisy frame: {noisy_error:.4f})")
+        + "".join(
+            f"; {args.render_spp}-spp render {w}x{h} in the rounds: {r.median_seconds:.2f} s"
+            for (w, h), r in in_rounds.items()
+        ),
     )
     if args.threads > usable_cores():
         note(f"{args.threads} threads on {usable_cores()} usable cores")
@@ -240,6 +264,9 @@ def main(argv: list[str] | None = None) -> None:
             "options": {**vars(args), "sizes": [list(s) for s in args.sizes]},
             "first_call_seconds": first_call,
             "noisy_rel_mse": noisy_error,
+            "render_seconds_in_rounds": {
+                f"{w}x{h}": in_rounds[(w, h)].median_seconds for w, h in in_rounds
+            },
             "render_seconds": {
                 f"{w}x{h}": [
                     frames[(w, h)].get("render_seconds_plain"),

@@ -1,6 +1,6 @@
 """What prefiltering the guides buys: error and seconds of the OIDN denoiser
 (``tracer.post.denoise``) for each quality of the beauty, with the guides taken as they are
-(``off``) or prefiltered at each quality.
+(``off``), the albedo alone prefiltered (``albedo``), or both prefiltered at each quality.
 
 Each scene (``--scenes``) is rendered at ``--size`` and at each of ``--spp`` with its AOVs (the
 guides), and at ``--reference-spp`` without; then every (quality, prefilter) pair denoises the
@@ -46,6 +46,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--reference-spp", type=int, default=256, help="spp of the references")
     parser.add_argument("--repeats", type=int, default=3, help="timed rounds")
     parser.add_argument("--threads", type=int, default=usable_cores(), help="threads")
+    parser.add_argument(
+        "--lens",
+        type=float,
+        nargs=2,
+        metavar=("RADIUS", "FOCUS"),
+        help="give every scene's camera this aperture radius and focus distance (depth of field)",
+    )
     args = parser.parse_args(argv)
     width, _, height = args.size.partition("x")
     args.width, args.height = int(width), int(height)
@@ -54,27 +61,38 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-PREFILTERS = ("off", "fast", "balanced", "high")
-"""The guides taken as they are, or prefiltered at a quality."""
+PREFILTERS = ("off", "albedo", "fast", "balanced", "high")
+"""The guides taken as they are, the albedo alone prefiltered (at ``PREFILTER_QUALITY``, the
+normal counted clean), or both prefiltered at a quality."""
 
 
 def frames(name: str, args: argparse.Namespace) -> tuple[np.ndarray, dict[int, dict]]:
     """The reference of scene ``name``, and for each of ``--spp`` the beauty (``path``) and its
     albedo and normal AOVs."""
-    render, guides = frame_renderer(name, args.width, args.height, args.threads)
+    render, guides = frame_renderer(name, args.width, args.height, args.threads, **lens(args))
     reference = render(args.reference_spp, False).rgb.reshape(args.height, args.width, 3)
     return reference, {spp: guides(render(spp, True)) for spp in args.spp}
 
 
-def auto_prefilters(name: str) -> bool:
-    """Whether ``render.denoise_prefilter`` ``auto`` prefilters scene ``name``'s guides."""
+def lens(args: argparse.Namespace) -> dict:
+    """The camera fields ``--lens`` sets (none without it)."""
+    if args.lens is None:
+        return {}
+    return {"aperture_radius": args.lens[0], "focus_distance": args.lens[1]}
+
+
+def auto_prefilters(name: str, args: argparse.Namespace) -> str:
+    """What ``render.denoise_prefilter`` ``auto`` makes of scene ``name`` (with ``--lens``):
+    on, albedo or off."""
     from denoise import REPO_ROOT
 
-    from tracer.post.guides import guides_are_noisy
+    from tracer.post.guides import resolve_prefilter
+    from tracer.scene.format import override
     from tracer.scene.loader import load_scene
 
     state = load_scene(str(REPO_ROOT / "scenes" / name / "scene.json"))
-    return guides_are_noisy(state.materials.values(), state.camera)
+    camera = override(state.camera, **lens(args))
+    return resolve_prefilter(state.render, state.materials.values(), camera).denoise_prefilter
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -87,7 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     results, rows = [], []
     for name in args.scenes:
         reference, by_spp = frames(name, args)
-        auto = auto_prefilters(name)
+        auto = auto_prefilters(name, args)
         for spp, f in by_spp.items():
             contenders, outputs = {}, {}
             for quality, prefilter in itertools.product(QUALITIES, PREFILTERS):
@@ -99,8 +117,8 @@ def main(argv: list[str] | None = None) -> None:
                         f["normal"],
                         quality=quality,
                         threads=args.threads,
-                        prefilter=prefilter != "off",
-                        prefilter_quality=None if prefilter == "off" else prefilter,
+                        prefilter={"off": False, "albedo": ("albedo",)}.get(prefilter, True),
+                        prefilter_quality=None if prefilter in ("off", "albedo") else prefilter,
                     )
 
                 key = f"{quality}/{prefilter}"
@@ -111,7 +129,7 @@ def main(argv: list[str] | None = None) -> None:
             for key, measured in series.items():
                 quality, prefilter = key.split("/")
                 error = rel_mse(outputs[key], reference)
-                chosen = prefilter == (PREFILTER_QUALITY[quality] if auto else "off")
+                chosen = prefilter == (PREFILTER_QUALITY[quality] if auto == "on" else auto)
                 results.append(
                     {
                         "scene": name,
@@ -137,7 +155,8 @@ def main(argv: list[str] | None = None) -> None:
                 )
     print_table(
         f"OIDN guided by the AOVs, as they are or prefiltered, {args.size}, {args.threads} "
-        f"threads, {args.repeats} rounds; relMSE against {args.reference_spp} spp",
+        f"threads, {args.repeats} rounds; relMSE against {args.reference_spp} spp"
+        + (f"; lens {args.lens[0]:g} focused at {args.lens[1]:g}" if args.lens else ""),
         ["scene", "spp", "quality", "prefilter", "median s", "relMSE", "raw relMSE"],
         rows,
     )

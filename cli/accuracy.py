@@ -60,7 +60,7 @@ from tracer.integrators.aov import CHANNELS, aov_layers
 from tracer.integrators.effects import effect_plan
 from tracer.integrators.flags import MATERIAL_BUILD, MATERIAL_EFFECTS, SHADOWS
 from tracer.kernel.threads import default_threads
-from tracer.post.guides import guides_are_noisy
+from tracer.post.guides import noisy_guides
 from tracer.render import render_image
 from tracer.scene import format as fmt
 from tracer.scene.loader import load_scene
@@ -222,7 +222,7 @@ def calibration(
     floor: float,
     options: StudyOptions,
     on_samples: Callable[[int], None],
-    prefilter: bool = False,
+    prefilter: tuple[str, ...] = (),
 ) -> list[dict]:
     """The online estimate against the true error: the reference's own settings (so the
     render is unbiased against it) with another seed, ``PARTS`` independent parts that double
@@ -232,7 +232,7 @@ def calibration(
     checked, and the true relative error of their mean (the
     reference's noise floor subtracted); with the render seconds of the parts so far and of
     the level's spot checks (:class:`RenderClock`). And for the mean denoised (``high``, the
-    AOVs guiding, prefiltered when ``prefilter``): the estimate of its error
+    AOVs guiding, those ``prefilter`` names prefiltered): the estimate of its error
     (``tracer.accuracy.denoised_error``; None where not given), its true error and the seconds
     that took (one denoising, and a second for the estimate where it is given; OIDN's start-up
     is paid before, untimed)."""
@@ -363,7 +363,7 @@ def study_scene(
         )
     floor = noise_floor(ref.mean, ref.var_of_mean)
     on_phase("sweep")
-    noisy_guides = guides_are_noisy(state.materials.values(), camera)
+    prefilter = noisy_guides(state.materials.values(), camera)  # what auto prefilters
     threads = options.threads or default_threads()
     configs_result, strips = sweep(
         scene,
@@ -374,13 +374,13 @@ def study_scene(
         options.max_spp,
         threads,
         on_samples,
-        prefilter=noisy_guides,
+        prefilter=prefilter,
         flip_every=options.flip_every,
     )
     on_phase("effect costs")
     costs = effect_costs(scene, camera, base, ref, floor, options, on_samples)
     on_phase("calibration")
-    calib = calibration(scene, camera, ref, floor, options, on_samples, prefilter=noisy_guides)
+    calib = calibration(scene, camera, ref, floor, options, on_samples, prefilter=prefilter)
     result = {
         "scene": str(path.relative_to(REPO_ROOT)) if path.is_relative_to(REPO_ROOT) else str(path),
         "size": [width, height],

@@ -182,12 +182,12 @@ def sweep(
     max_spp: int,
     threads: int,
     on_samples: Callable[[int], None],
-    prefilter: bool = False,
+    prefilter: tuple[str, ...] = (),
     flip_every: int = 2,
 ) -> tuple[dict, dict[str, dict[int, np.ndarray]]]:
     """Run every configuration through the spp levels 1 to ``max_spp`` on ``threads`` threads,
-    interleaved wave by wave (a denoised one after its source, its guides prefiltered when
-    ``prefilter``; FLIP at every ``flip_every``-th level and the last); returns the
+    interleaved wave by wave (a denoised one after its source, the guides ``prefilter`` names
+    prefiltered; FLIP at every ``flip_every``-th level and the last); returns the
     per-configuration records and the images at ``STRIP_SPP`` of the default configuration and of
     ``DENOISED_STRIP``, by configuration name."""
     runs = []
@@ -268,7 +268,8 @@ def sweep(
             data["denoise"] = {
                 "quality": run.config.denoise,
                 "source": run.config.source,
-                "prefiltered": prefilter,
+                "prefiltered": bool(prefilter),
+                "prefiltered_guides": list(prefilter),
             }
         data["levels"] = run.levels
         data["time_to"] = {f"{t:g}": time_to(run.levels, t) for t in TARGETS}

@@ -50,6 +50,7 @@ from tracer.accuracy.error_estimate import PARTS, estimate_rel_error
 from tracer.accuracy.spot_check import SpotCheck, SpotCheckLedger
 from tracer.integrators.aov import CHANNELS, IDS, aov_layers
 from tracer.post.denoise import DenoiseFailed
+from tracer.post.guides import prefilter_argument
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
@@ -92,11 +93,11 @@ class Goal:
 
 @dataclass(frozen=True)
 class DenoisedTarget:
-    """A target error measured on the frame denoised at ``quality`` (its guides prefiltered
-    when ``prefilter``), as the frame's output will be."""
+    """A target error measured on the frame denoised at ``quality`` (the guides ``prefilter``
+    names prefiltered, True: both), as the frame's output will be."""
 
     quality: str
-    prefilter: bool
+    prefilter: bool | tuple[str, ...]  # ``tracer.post.denoise.denoise``'s
 
     @classmethod
     def of(cls, settings: fmt.RenderSettings, goal: Goal) -> DenoisedTarget | None:
@@ -105,7 +106,7 @@ class DenoisedTarget:
         counts as on)."""
         if goal.target_error is None or settings.denoise == "off" or not settings.renders_aovs:
             return None
-        return cls(settings.denoise, settings.denoise_prefilter != "off")
+        return cls(settings.denoise, prefilter_argument(settings.denoise_prefilter))
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from tracer.integrators.aov import ALBEDO, NORMAL
 from tracer.integrators.names import AOV_INTEGRATORS, DENOISE
 from tracer.maths import portable
 from tracer.post.denoise import Denoised
-from tracer.post.guides import resolve_prefilter
+from tracer.post.guides import prefilter_argument, resolve_prefilter
 from tracer.request import FrameRequest
 from tracer.scene import format as fmt
 
@@ -150,9 +150,9 @@ class SessionFrame:
     guides: np.ndarray | None = None
     """float32 (H, W, 6): the blended albedo and normal behind ``image``, when denoising with
     guides (the integrator records AOVs)."""
-    prefilter: bool = False
-    """Whether to prefilter the guides: the scene's ``render.denoise_prefilter``, ``auto``
-    resolved for it (``tracer.post.guides``)."""
+    prefilter: bool | tuple[str, ...] = False
+    """Which guides to prefilter (``tracer.post.denoise.denoise``'s ``prefilter``): the scene's
+    ``render.denoise_prefilter``, ``auto`` resolved for it (``tracer.post.guides``)."""
 
 
 class InteractiveSession:
@@ -326,10 +326,10 @@ class InteractiveSession:
         self.last_frame = None
 
 
-def _prefilters(state, camera: fmt.Camera) -> bool:
-    """Whether the scene's ``render.denoise_prefilter`` (``auto`` resolved) prefilters."""
+def _prefilters(state, camera: fmt.Camera) -> bool | tuple[str, ...]:
+    """The guides the scene's ``render.denoise_prefilter`` (``auto`` resolved) prefilters."""
     settings = resolve_prefilter(state.render, state.materials.values(), camera)
-    return settings.denoise_prefilter == "on"
+    return prefilter_argument(settings.denoise_prefilter)
 
 
 def _blended(

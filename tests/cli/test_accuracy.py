@@ -128,6 +128,7 @@ def test_denoised_configurations(study):
         data = result["configs"][config]
         assert data["denoise"]["source"] == AOV_CONFIG
         assert data["denoise"]["prefiltered"] is False  # the Cornell box: no texture, no lens
+        assert data["denoise"]["prefiltered_guides"] == []
         for spp, level in levels_of(result, config).items():
             assert level["rays"] == source[spp]["rays"]
             assert level["seconds"] > source[spp]["seconds"]

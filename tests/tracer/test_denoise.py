@@ -227,9 +227,9 @@ def test_guides_are_prefiltered_at_most_at_balanced(monkeypatch):
     calls = []
     run_filter = denoise_module._run_filter
 
-    def recording(pyoidn, entry, images, options):
+    def recording(entry, images, options):
         calls.append((tuple(k for k in images if k != "output"), options["quality"]))
-        return run_filter(pyoidn, entry, images, options)
+        return run_filter(entry, images, options)
 
     monkeypatch.setattr(denoise_module, "_run_filter", recording)
     levels = {"fast": 4, "balanced": 5, "high": 6}
@@ -246,3 +246,63 @@ def test_guides_are_prefiltered_at_most_at_balanced(monkeypatch):
             (("normal",), levels[guide_quality]),
             (("color", "albedo", "normal"), levels[quality]),
         ]
+
+
+def test_only_the_named_guides_are_prefiltered(monkeypatch):
+    """``prefilter=("albedo",)`` runs the albedo's prefilter alone and the beauty with cleanAux
+    (the normal counted clean as it is); the result lies between none and both prefiltered."""
+    calls = []
+    run_filter = denoise_module._run_filter
+
+    def recording(entry, images, options):
+        calls.append((tuple(k for k in images if k != "output"), options.get("cleanAux")))
+        return run_filter(entry, images, options)
+
+    monkeypatch.setattr(denoise_module, "_run_filter", recording)
+    rng = np.random.default_rng(4)
+    albedo = ALBEDO + 0.05 * rng.standard_normal(ALBEDO.shape).astype(np.float32)
+    beauty = noisy()
+    results = {
+        choice: denoise(beauty, albedo, NORMAL, quality="fast", prefilter=choice)
+        for choice in (False, ("albedo",), True)
+    }
+    assert calls == [
+        (("color", "albedo", "normal"), False),
+        (("albedo",), None),
+        (("color", "albedo", "normal"), True),
+        (("albedo",), None),
+        (("normal",), None),
+        (("color", "albedo", "normal"), True),
+    ]
+    albedo_only = results[("albedo",)]
+    assert albedo_only.prefiltered is True and albedo_only.prefiltered_guides == ("albedo",)
+    assert results[True].prefiltered_guides == ("albedo", "normal")
+    assert results[False].prefiltered is False and results[False].prefiltered_guides == ()
+    images = [result.image for result in results.values()]
+    assert not np.array_equal(images[0], images[1]) and not np.array_equal(images[1], images[2])
+    # A named guide that was not given is not prefiltered: no guide, nothing to clean.
+    plain = denoise(beauty, quality="fast", prefilter=("normal",))
+    assert plain.prefiltered is False and plain.guides == ()
+
+
+@pytest.mark.parametrize("prefilter", [("depth",), ["albedo"], "on", None])
+def test_a_bad_prefilter_is_refused(prefilter):
+    with pytest.raises(ValueError, match="prefilter"):
+        denoise(noisy(), ALBEDO, NORMAL, prefilter=prefilter)
+
+
+@pytest.mark.parametrize(
+    ("choice", "named"), [("off", []), ("albedo", ["albedo"]), ("on", ["albedo", "normal"])]
+)
+def test_a_frames_prefilter_setting_reaches_the_denoiser(choice, named):
+    from tracer.integrators.aov import CHANNELS, LAYERS
+    from tracer.post.frame_layers import frame_layers
+    from tracer.scene import format as fmt
+
+    aov = np.zeros((SIZE, SIZE, CHANNELS), np.float32)
+    aov[..., LAYERS["albedo"]] = ALBEDO
+    aov[..., LAYERS["normal"]] = NORMAL
+    settings = fmt.RenderSettings(denoise="fast", denoise_prefilter=choice)
+    _, metadata = frame_layers(noisy(), aov, settings)
+    assert metadata["denoise"]["prefiltered_guides"] == named
+    assert metadata["denoise"]["prefiltered"] is bool(named)

@@ -83,7 +83,7 @@ def denoise_and_estimate(
     albedo: np.ndarray | None,
     normal: np.ndarray | None,
     quality: str,
-    prefilter: bool,
+    prefilter: bool | tuple[str, ...],
     seed: int,
     threads: int | None = None,
 ) -> tuple[np.ndarray, float | None]:

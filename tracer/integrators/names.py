@@ -18,9 +18,9 @@ DENOISE = ("off", "fast", "balanced", "high")
 """``render.denoise``'s choices: off, or an Open Image Denoise quality
 (``tracer.post.denoise``)."""
 
-DENOISE_PREFILTER = ("auto", "on", "off")
+DENOISE_PREFILTER = ("auto", "on", "off", "albedo")
 """``render.denoise_prefilter``'s choices: prefilter the denoiser's guides where they are noisy
-(``tracer.post.guides``), always, or never."""
+(``tracer.post.guides``), always, never, or the albedo only (the normal counted clean)."""
 
 ADAPTIVE = ("auto", "on", "off")
 """``render.adaptive``'s choices: adaptive sampling in progressive renders where it is predicted

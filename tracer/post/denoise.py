@@ -5,10 +5,11 @@ guided by an albedo and a normal image. Noisy guides (a path tracer's first-hit 
 normal at low spp) are prefiltered as OIDN's documentation recommends: each guide is denoised
 by its own ``RT`` filter first, and the beauty is then denoised with ``cleanAux``. One
 committed OIDN device per thread count is kept for the life of the process and shared by every
-call (creating one is slow), each behind its own lock, so concurrent calls are serialised per
-device. OIDN's output is deterministic on one machine, but may differ slightly between CPUs with
-different instruction sets (AVX2, AVX-512, AMX), since each runs its own kernels. Figures and
-the reading of the qualities and guides: ``docs/denoising.md``.
+call (creating one is slow), with its filters (``tracer.post.oidn_filters``), each behind its own
+lock, so concurrent calls are serialised per device. OIDN's output is deterministic on one
+machine, but may differ slightly between CPUs with different instruction sets (AVX2, AVX-512,
+AMX), since each runs its own kernels. Figures and the reading of the qualities and guides:
+``docs/denoising.md``.
 """
 
 from __future__ import annotations
@@ -22,9 +23,13 @@ import numpy as np
 
 from tracer.errors import TilerenderError
 from tracer.kernel.threads import default_threads
+from tracer.post.oidn_filters import FilterCache
 
 QUALITIES = ("fast", "balanced", "high")
 """``quality``'s choices, OIDN's ``OIDN_QUALITY_FAST``, ``_BALANCED`` and ``_HIGH``."""
+
+GUIDES = ("albedo", "normal")
+"""The guides ``denoise`` takes, and may prefilter."""
 
 _OIDN_QUALITY = {"fast": 4, "balanced": 5, "high": 6}  # the values of OIDNQuality (oidn.h)
 
@@ -52,13 +57,15 @@ class Denoised:
     seconds: float  # the whole call, validation and prefiltering included
     quality: str  # one of QUALITIES
     guides: tuple[str, ...]  # (), ("albedo",) or ("albedo", "normal")
-    prefiltered: bool  # the guides were denoised first and the beauty with cleanAux
+    prefiltered: bool  # guides were denoised first and the beauty with cleanAux
+    prefiltered_guides: tuple[str, ...] = ()  # which guides were denoised first
 
 
 @dataclass
 class _Device:
     device: object  # pyoidn.Device, committed
-    lock: threading.Lock
+    lock: threading.Lock  # held for every use of the device and its filters
+    filters: FilterCache
 
 
 _devices: dict[int, _Device] = {}
@@ -98,7 +105,7 @@ def _device(pyoidn: ModuleType, threads: int) -> _Device:
             error = device.get_error()
         if error is not None:
             raise DenoiserUnavailable(f"OIDN could not create a CPU device: {error}")
-        entry = _devices[threads] = _Device(device, threading.Lock())
+        entry = _devices[threads] = _Device(device, threading.Lock(), FilterCache(pyoidn, device))
         return entry
 
 
@@ -118,25 +125,10 @@ def _check_image(name: str, array: object, shape: tuple[int, ...] | None) -> np.
     return image
 
 
-def _run_filter(pyoidn: ModuleType, entry: _Device, images: dict, options: dict) -> None:
-    """Run one ``RT`` filter over ``images`` (name -> float32 array) with bool ``options``."""
-    device = entry.device
-    filter_ = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
-    try:
-        for name, image in images.items():
-            filter_.set_image(name, image, pyoidn.OIDN_FORMAT_FLOAT3)
-        for name, value in options.items():
-            if name == "quality":
-                filter_.set_quality(value)
-            else:
-                filter_.set_bool(name, value)
-        filter_.commit()
-        error = device.get_error()
-        if error is None:
-            filter_.execute()
-            error = device.get_error()
-    finally:
-        filter_.release()
+def _run_filter(entry: _Device, images: dict, options: dict) -> None:
+    """Run an ``RT`` filter of ``entry``'s over ``images`` (name -> float32 array) with
+    ``options``, or raise DenoiseFailed."""
+    error = entry.filters.run(images, options)
     if error is not None:
         raise DenoiseFailed(f"OIDN failed to denoise ({', '.join(images)}): {error}")
 
@@ -147,16 +139,17 @@ def denoise(
     normal: np.ndarray | None = None,
     quality: str = "high",
     threads: int | None = None,
-    prefilter: bool = True,
+    prefilter: bool | tuple[str, ...] = True,
     prefilter_quality: str | None = None,
 ) -> Denoised:
     """Denoise a linear HDR ``beauty`` (H, W, 3) with OIDN's ``RT`` filter on the CPU.
 
     ``albedo`` (clamped to [0, 1]) and ``normal`` (world space, in [-1, 1]) are optional guides
-    of the same shape; a normal needs an albedo. With ``prefilter`` the guides are denoised
+    of the same shape; a normal needs an albedo. With ``prefilter`` True the guides are denoised
     first (at ``prefilter_quality``, default ``PREFILTER_QUALITY[quality]``) and the beauty
-    with ``cleanAux``; without it OIDN
-    takes them as they are (right for noise-free guides). ``threads`` defaults to the CPUs this
+    with ``cleanAux``; a tuple of guide names (``GUIDES``) prefilters only those of them given,
+    the others counted clean as they are; with False OIDN takes the guides as they are, noisy
+    (right for noise-free guides, and cheapest). ``threads`` defaults to the CPUs this
     process may use. The caller's arrays are never modified. Raises ValueError for bad input,
     DenoiserUnavailable when pyoidn or OIDN's CPU device is missing, DenoiseFailed when OIDN
     reports an error.
@@ -169,6 +162,10 @@ def denoise(
         raise ValueError(
             f"prefilter_quality must be one of {', '.join(QUALITIES)}, not {prefilter_quality!r}"
         )
+    if not isinstance(prefilter, bool) and (
+        not isinstance(prefilter, tuple) or not set(prefilter) <= set(GUIDES)
+    ):
+        raise ValueError(f"prefilter must be a bool or a tuple of {GUIDES}, not {prefilter!r}")
     if threads is not None and (
         isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
     ):
@@ -189,18 +186,20 @@ def denoise(
     level = _OIDN_QUALITY[quality]
     guide_level = _OIDN_QUALITY[prefilter_quality]
     output = np.empty_like(color)
-    prefiltered = prefilter and bool(guides)
+    chosen = GUIDES if prefilter is True else prefilter or ()
+    prefiltered = tuple(name for name in guides if name in chosen)
     with entry.lock:
-        if prefiltered:
-            for name, guide in guides.items():  # in place: the guides are this call's copies
-                _run_filter(pyoidn, entry, {name: guide, "output": guide}, {"quality": guide_level})
+        for name in prefiltered:  # in place: the guides are this call's copies
+            guide = guides[name]
+            _run_filter(entry, {name: guide, "output": guide}, {"quality": guide_level})
         images = {"color": color, **guides, "output": output}
-        options = {"hdr": True, "cleanAux": prefiltered, "quality": level}
-        _run_filter(pyoidn, entry, images, options)
+        options = {"hdr": True, "cleanAux": bool(prefiltered), "quality": level}
+        _run_filter(entry, images, options)
     return Denoised(
         image=output,
         seconds=time.perf_counter() - start,
         quality=quality,
         guides=tuple(guides),
-        prefiltered=prefiltered,
+        prefiltered=bool(prefiltered),
+        prefiltered_guides=prefiltered,
     )

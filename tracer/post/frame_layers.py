@@ -5,6 +5,7 @@ import numpy as np
 
 from tracer.integrators.aov import LAYERS, aov_layers
 from tracer.post.denoise import Denoised, DenoiseFailed, denoise
+from tracer.post.guides import prefilter_argument
 from tracer.scene import format as fmt
 
 
@@ -29,15 +30,15 @@ def frame_layers(
 
     The AOV layers are kept when ``settings.aovs`` asks for them; else they only guide the
     denoiser. When ``settings.denoise`` asks for the denoised layer, the albedo and normal
-    guide it where the frame has them, prefiltered unless ``settings.denoise_prefilter`` is
-    ``off`` (``auto`` left unresolved counts as ``on``: ``tracer.post.guides`` resolves it), and
+    guide it where the frame has them, prefiltered as ``settings.denoise_prefilter`` says
+    (``tracer.post.guides.prefilter_argument``; ``auto`` left unresolved counts as ``on``), and
     the metadata is ``{"denoise": {...}}`` (its quality, guides, prefiltering and seconds); else
     ``{}``."""
     layers = {"beauty": rgb}
     aovs = aov_layers(aov) if aov is not None else {}
     if settings.denoise == "off":
         return {**layers, **aovs}, {}
-    prefilter = settings.denoise_prefilter != "off"
+    prefilter = prefilter_argument(settings.denoise_prefilter)
     try:
         done = denoise_with_aov(rgb, aov, settings.denoise, prefilter, threads)
     except ValueError as exc:  # a frame OIDN cannot take (the renderer's bug, not the user's)
@@ -49,6 +50,7 @@ def frame_layers(
         "quality": done.quality,
         "guides": list(done.guides),
         "prefiltered": done.prefiltered,
+        "prefiltered_guides": list(done.prefiltered_guides),
         "seconds": round(done.seconds, 4),
     }
     return layers, {"denoise": info}
@@ -58,12 +60,12 @@ def denoise_with_aov(
     rgb: np.ndarray,
     aov: np.ndarray | None,
     quality: str,
-    prefilter: bool,
+    prefilter: bool | tuple[str, ...],
     threads: int | None = None,
 ) -> Denoised:
     """``rgb`` (H, W, 3) denoised at ``quality``, guided by the albedo and normal of ``aov``
-    (H, W, ``aov.CHANNELS``; None: no guides), prefiltered when ``prefilter``
-    (``tracer.post.denoise.denoise``, whose errors it raises)."""
+    (H, W, ``aov.CHANNELS``; None: no guides), those ``prefilter`` names (True: both)
+    prefiltered (``tracer.post.denoise.denoise``, whose errors it raises)."""
     albedo = normal = None
     if aov is not None:
         layers = aov_layers(np.asarray(aov, np.float32))

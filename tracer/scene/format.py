@@ -389,8 +389,9 @@ class RenderSettings(Strict):
     denoise_prefilter: Literal[DENOISE_PREFILTER] = Field(
         default="auto",
         description="Prefilter the denoiser's albedo and normal guides before the beauty is "
-        "denoised (OIDN's recipe for noisy guides): auto where they are noisy (a lens aperture "
-        "or a textured material), on, or off (docs/denoising.md)",
+        "denoised (OIDN's recipe for noisy guides): auto where they are noisy (both with a lens "
+        "aperture or a normal map, the albedo alone with textures only), on (both), off, or "
+        "albedo (the albedo alone, the normal counted clean) (docs/denoising.md)",
     )
     adaptive: Literal[ADAPTIVE] = Field(
         default="auto",
