@@ -1,5 +1,6 @@
 """Compile the kernel builds the test suite needs in a process of its own, while the first tests
-run: the suite's time is mostly first compiles, and a compile uses one core of the two.
+run: the suite's time is mostly first compiles, and a compile uses one core of the two. It runs
+at a lower priority than the tests, so it takes a core only where they leave one idle.
 
 ``tests/conftest.py`` starts it for runs of many tests and stops it when they end. A test that
 needs a build before it is warm compiles it itself, as without the warmer; either way the build
@@ -10,6 +11,8 @@ integrators' last.
 
     python -m tests.kernel_warmer
 """
+
+import os
 
 from tests.helpers import SCENES
 from tracer.warm import Build, builds
@@ -25,6 +28,7 @@ def warm_order() -> list[Build]:
 
 
 def main() -> None:
+    os.nice(10)
     for build in warm_order():
         build.compile()
 
