@@ -35,9 +35,11 @@ def card(size=(2.0, 2.0), x: float = 0.0) -> dict:
     return {"name": "card", "shape": shape, "material": "card", "transform": place}
 
 
-def card_scene(tmp_path, card_material: dict | None, objects=None, camera=ABOVE, **render):
-    """The lamp over a floor with ``objects`` (default: a card of ``card_material``), loaded
-    and compiled."""
+def card_scene(
+    tmp_path, card_material: dict | None, objects=None, camera=ABOVE, materials=None, **render
+):
+    """The lamp over a floor with ``objects`` (default: a card of ``card_material``) and
+    ``materials`` besides the card's, loaded and compiled."""
     if objects is None:
         objects = [] if card_material is None else [card()]
     scene = {
@@ -47,6 +49,7 @@ def card_scene(tmp_path, card_material: dict | None, objects=None, camera=ABOVE,
             "floor": {"reflectance": [0.8, 0.8, 0.8]},
             "lamp": {"reflectance": [0, 0, 0], "emission": [12, 12, 12], "two_sided": False},
             "card": card_material or {"reflectance": [0.5, 0.3, 0.2]},
+            **(materials or {}),
         },
         "objects": [FLOOR, LAMP, *objects],
     }
@@ -110,19 +113,27 @@ def test_a_mask_cuts_the_card_as_geometry_would(tmp_path):
     assert welch_pixel_test(*a, *c).accepted_fraction < 0.9
 
 
-@pytest.mark.parametrize("value", [0.3, 0.7])
-def test_blend_transmits_one_minus_alpha(tmp_path, value):
-    """Under a black blend card of alpha ``a`` covering the lamp, the floor gets ``1 - a`` of
-    its light (direct light, the camera under the card): the per-pixel difference
-    ``card - (1 - a) no_card`` at the same random numbers averages to 0 within 5 standard
-    errors (of its spread over the pixels), and the light is not ``1 - a`` of the other value."""
-    material = {"reflectance": [0, 0, 0], "alpha": {"mode": "blend", "value": value}}
+@pytest.mark.parametrize(
+    ("values", "expected", "wrong"), [([0.3], 0.7, 0.3), ([0.7], 0.3, 0.7), ([0.5, 0.5], 0.25, 0.5)]
+)
+def test_blend_transmits_one_minus_alpha(tmp_path, values, expected, wrong):
+    """Under black blend cards of alphas ``values`` covering the lamp, the floor gets the
+    product of their ``1 - alpha`` of its light (direct light, the camera under the cards):
+    the per-pixel difference ``covered - expected bare`` at the same random numbers averages
+    to 0 within 5 standard errors (of its spread over the pixels), and not with ``wrong`` (for
+    two cards: what one decision for both would give)."""
+    cards = [{**card((3.0, 3.0)), "name": f"card-{i}", "material": f"card-{i}",
+              "transform": {"translate": [0, 1 + 0.2 * i, 0], "rotate": [-90, 0, 0]}}
+             for i in range(len(values))]  # fmt: skip
     settings = {"camera": BELOW, "integrator": "direct", "spp": 16}
     bare = render(card_scene(tmp_path, None, **settings)).astype(np.float64)
-    covered = render(card_scene(tmp_path, material, **settings)).astype(np.float64)
+    blends = {f"card-{i}": {"reflectance": [0, 0, 0], "alpha": {"mode": "blend", "value": v}}
+              for i, v in enumerate(values)}  # fmt: skip
+    scene = card_scene(tmp_path, None, objects=cards, materials=blends, **settings)
+    covered = render(scene).astype(np.float64)
     assert bare.min() > 0.0
-    for expected, near in ((1.0 - value, True), (value, False)):
-        difference = (covered - expected * bare).reshape(-1, 3)
+    for factor, near in ((expected, True), (wrong, False)):
+        difference = (covered - factor * bare).reshape(-1, 3)
         error = difference.std(axis=0, ddof=1) / np.sqrt(difference.shape[0])
         assert (np.abs(difference.mean(axis=0)) < 5.0 * error).all() == near
 
