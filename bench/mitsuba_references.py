@@ -60,6 +60,7 @@ SCENES = {
     "mitsuba/environment": ("mitsuba/environment/scene.json", 2),
     "mitsuba/smooth": ("mitsuba/smooth/scene.json", 3),
     "mitsuba/normal-map": ("mitsuba/normal-map/scene.json", 3),
+    "mitsuba/alpha-card": ("mitsuba/alpha-card/scene.json", 2),
 }
 """Name -> (scene file under scenes/, factor the reference's size is divided by)."""
 MEAN_FILE = "mitsuba_mean.npy"

@@ -94,6 +94,7 @@ AGREEING = {
     "mitsuba/environment": Case(factor=4, spp=256, rounding=ENVIRONMENT_PROXY),
     "mitsuba/smooth": Case(factor=2, spp=256),
     "mitsuba/normal-map": Case(),
+    "mitsuba/alpha-card": Case(),
 }
 """Scenes that agree with Mitsuba. Allowed: Mitsuba's rough conductor masking, and its rough
 plastic's once the export has scaled the base (docs/mitsuba.md), differ from ours by less than

@@ -87,6 +87,9 @@ class SceneArrays(NamedTuple):
     """int64 (T, 4): per texture its first texel, width, height and wrap mode."""
     tex_scale: np.ndarray
     """float64 (T, 2): per texture the scale applied to UVs."""
+    mat_alpha: np.ndarray
+    """float64 (Q, 4): each material's alpha (``tracer.shading.textures.TextureTable.alpha``);
+    (0, 4) unless the plan tests alpha (``flags.ALPHA_TEST``)."""
     light_kind: np.ndarray
     """int32 (L,): kind of each light (``tracer.shading.lights`` constants)."""
     light_inst: np.ndarray
@@ -181,6 +184,7 @@ def borrow_scene(s):
         borrowed(s.tex_pixels),
         borrowed(s.tex_info),
         borrowed(s.tex_scale),
+        borrowed(s.mat_alpha),
         borrowed(s.light_kind),
         borrowed(s.light_inst),
         borrowed(s.light_tri),

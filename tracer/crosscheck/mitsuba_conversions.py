@@ -202,3 +202,32 @@ def is_closed_outward(vertices: np.ndarray, faces: np.ndarray) -> bool:
     """Whether the triangles (with coincident vertices merged) bound a volume, wound outward."""
     mesh = trimesh.Trimesh(vertices, faces, process=True)
     return bool(mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0.0)
+
+
+MASK_GRID = 8
+"""Points per texel side at which ``mask_opacity`` thresholds an alpha texture."""
+MASK_SIDE = 4096
+"""The largest side of a thresholded mask (fewer points per texel for large textures)."""
+
+
+def mask_opacity(alpha: np.ndarray, wrap: str, cutoff: float) -> tuple[np.ndarray, int]:
+    """A mask's opacity for Mitsuba: ``alpha`` (H, W) looked up bilinearly as the kernels do
+    (``tracer.shading.textures.bilinear``, ``wrap`` at the edges) at the centres of a grid
+    ``k`` times finer than the texels, 1 where it reaches ``cutoff`` and 0 elsewhere; returns
+    the grid (H k, W k) and ``k``."""
+    height, width = alpha.shape
+    k = max(1, min(MASK_GRID, MASK_SIDE // max(height, width)))
+
+    def neighbours(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        x = (np.arange(size * k) + 0.5) / k - 0.5  # texel space, centres at integers
+        i0 = np.floor(x).astype(np.int64)
+        if wrap == "repeat":
+            return i0 % size, (i0 + 1) % size, x - i0
+        return np.clip(i0, 0, size - 1), np.clip(i0 + 1, 0, size - 1), x - i0
+
+    x0, x1, fx = neighbours(width)
+    y0, y1, fy = neighbours(height)
+    fx, fy = fx[None, :], fy[:, None]
+    value = ((1 - fx) * (1 - fy) * alpha[np.ix_(y0, x0)] + fx * (1 - fy) * alpha[np.ix_(y0, x1)]
+             + (1 - fx) * fy * alpha[np.ix_(y1, x0)] + fx * fy * alpha[np.ix_(y1, x1)])  # fmt: skip
+    return (value >= cutoff).astype(np.float64), k

@@ -59,8 +59,24 @@ class MitsubaExport:
 
 
 KNOWN_FIELDS = {
-    fmt.DiffuseMaterial: {"type", "reflectance", "emission", "two_sided", "texture", "normal_map"},
-    fmt.MirrorMaterial: {"type", "reflectance", "emission", "two_sided", "texture", "normal_map"},
+    fmt.DiffuseMaterial: {
+        "type",
+        "reflectance",
+        "emission",
+        "two_sided",
+        "texture",
+        "normal_map",
+        "alpha",
+    },
+    fmt.MirrorMaterial: {
+        "type",
+        "reflectance",
+        "emission",
+        "two_sided",
+        "texture",
+        "normal_map",
+        "alpha",
+    },
     fmt.DielectricMaterial: {"type", "ior", "absorption"},
     fmt.ConductorMaterial: {
         "type",
@@ -72,6 +88,7 @@ KNOWN_FIELDS = {
         "two_sided",
         "texture",
         "normal_map",
+        "alpha",
     },
     fmt.PlasticMaterial: {
         "type",
@@ -82,8 +99,10 @@ KNOWN_FIELDS = {
         "two_sided",
         "texture",
         "normal_map",
+        "alpha",
     },
     fmt.Texture: {"file", "wrap", "scale"},
+    fmt.Alpha: {"mode", "cutoff", "value", "texture"},
     fmt.NormalMap: {"file", "wrap", "scale", "strength"},
     fmt.ConstantSky: {"type", "radiance"},
     fmt.GradientSky: {"type", "zenith", "horizon", "ground"},
@@ -199,6 +218,8 @@ class _Writer(MaterialsWriter, EmittersWriter):
             _check_fields(material, f"material {name!r}")
             if getattr(material, "texture", None) is not None:
                 _check_fields(material.texture, f"material {name!r}: texture")
+            if getattr(material, "alpha", None) is not None:
+                _check_fields(material.alpha, f"material {name!r}: alpha")
         sky = state.sky
         _check_fields(sky.model if isinstance(sky, EnvironmentMap) else sky, "sky")
         for i, light in enumerate(state.lights):
@@ -247,7 +268,13 @@ class _Writer(MaterialsWriter, EmittersWriter):
             and max(self.state.materials[m.material].absorption) > 0.0
             for m in self.meshes
         )
-        self.integrator = "volpath" if absorbing else "path"
+        # Mitsuba's path tracer sends shadow rays into a mask as into an opaque surface and
+        # counts a pass through it as a bounce; its volpath, as ours, does neither.
+        cut_out = any(
+            getattr(self.state.materials[m.material], "alpha", None) is not None
+            for m in self.meshes
+        )
+        self.integrator = "volpath" if absorbing or cut_out else "path"
         cap = MITSUBA_TWINS[render.integrator]
         max_depth = render.max_depth if cap is None else min(render.max_depth, cap)
         element = child(root, "integrator", type=self.integrator)
@@ -310,14 +337,16 @@ class _Writer(MaterialsWriter, EmittersWriter):
         the file's values). So the PLY holds ``(s_u u, 1 - s_v v)``, from the float32 UVs the
         kernels interpolate."""
         material = self.state.materials[mesh.material]
+        alpha = getattr(material, "alpha", None)
         maps = [t for t in (getattr(material, "texture", None),
-                            getattr(material, "normal_map", None)) if t is not None]  # fmt: skip
+                            getattr(material, "normal_map", None),
+                            None if alpha is None else alpha.texture) if t is not None]  # fmt: skip
         if not maps:
             return None
         texture = maps[0]
         if any(tuple(t.scale) != tuple(texture.scale) for t in maps):
             raise UnsupportedFeature(
-                f"material {mesh.material!r}", "a texture and a normal map of different scales"
+                f"material {mesh.material!r}", "textures and maps of different scales"
             )
         uvs = self.state.meshes[self.state.nodes[mesh.node].mesh].uvs
         if uvs is None:

@@ -12,7 +12,7 @@ from tracer.crosscheck.mitsuba_base import (
     rgb,
     scalar,
 )
-from tracer.crosscheck.mitsuba_conversions import rough_plastic_base_scale
+from tracer.crosscheck.mitsuba_conversions import mask_opacity, rough_plastic_base_scale
 from tracer.io.images import write_image
 from tracer.scene import format as fmt
 from tracer.scene.model import SceneState, WorldMesh
@@ -22,7 +22,7 @@ from tracer.shading.materials import (
     material_row,
     roughness_to_alpha,
 )
-from tracer.shading.textures import srgb_to_linear
+from tracer.shading.textures import alpha_image_name, linear_texels, srgb_to_linear
 
 
 class MaterialsWriter:
@@ -45,6 +45,8 @@ class MaterialsWriter:
                 wrapper = ET.Element("bsdf", type="twosided")
                 wrapper.append(bsdf)
                 bsdf = wrapper
+            if getattr(material, "alpha", None) is not None:
+                bsdf = self._masked(name, bsdf, material.alpha)
             bsdf.set("id", ids[name])
             root.append(bsdf)
         return ids
@@ -97,6 +99,45 @@ class MaterialsWriter:
         child(element, "string", name="wrap_mode", value=normal_map.wrap)
         child(wrapper, "boolean", name="flip_invalid_normals", value="false")
         child(wrapper, "boolean", name="use_shadowing_function", value="false")
+        wrapper.append(bsdf)
+        return wrapper
+
+    def _masked(self, name: str, bsdf: ET.Element, alpha: fmt.Alpha) -> ET.Element:
+        """``bsdf`` under Mitsuba's ``mask``, whose opacity is the surface's chance of being
+        there: for ``blend`` our alpha (value times the alpha texels, bilinear), for ``mask``
+        our bilinear alpha thresholded at the cutoff on a grid ``upsampled`` times finer than
+        the texels, looked up nearest (``mitsuba_conversions.mask_opacity``)."""
+        wrapper = ET.Element("bsdf", type="mask")
+        if alpha.texture is None:
+            covered = alpha.value >= alpha.cutoff if alpha.mode == "mask" else alpha.value
+            scalar(wrapper, "opacity", float(covered))
+            wrapper.append(bsdf)
+            return wrapper
+        image = self.state.textures[alpha_image_name(alpha.texture.file)]
+        texels = linear_texels(image)[:, :, 0].astype(np.float64) * alpha.value  # the kernels'
+
+        filter_type = "bilinear"
+        if alpha.mode == "mask":
+            texels, factor = mask_opacity(texels, alpha.texture.wrap, alpha.cutoff)
+            filter_type = "nearest"
+            self.note(
+                f"alpha mask {name!r}",
+                "proxy",
+                f"the cut-out is our bilinear alpha thresholded at the cutoff on {factor} x "
+                f"{factor} points per texel, looked up nearest: exact where the cut follows "
+                "texel edges (binary alpha at cutoff 0.5), else within a sub-texel",
+            )
+        grey = np.repeat(texels[:, :, None], 3, axis=2).astype(np.float32)
+        digest = hashlib.sha256(np.ascontiguousarray(grey).tobytes())
+        digest.update(repr(grey.shape).encode())
+        relative = f"textures/opacity-{digest.hexdigest()[:16]}.exr"
+        if not (self.out / relative).exists():
+            write_image(self.out / relative, grey)
+        element = child(wrapper, "texture", type="bitmap", name="opacity")
+        child(element, "string", name="filename", value=relative)
+        child(element, "boolean", name="raw", value="true")
+        child(element, "string", name="filter_type", value=filter_type)
+        child(element, "string", name="wrap_mode", value=alpha.texture.wrap)
         wrapper.append(bsdf)
         return wrapper
 

@@ -335,130 +335,154 @@ def enter_any(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max, st
     return entry, sp
 
 
-@jit_inline
-def blas_closest(
-    node_bounds,
-    node_child,
-    tri_verts,
-    tri_prim,
-    root,
-    inst,
-    floor,
-    o,
-    d,
-    t_key,
-    t_hit,
-    h_inst,
-    h_j,
-    h_prim,
-    hb0,
-    hb1,
-    hb2,
-    stack_node,
-    stack_t,
-    sp0,
-):
-    """Closest-hit traversal of one BVH from node ``root`` (entered with key ``floor``) for the
-    ray ``o + t d``.
+def closest_traversal(alpha: bool):
+    """:func:`blas_closest`; with ``alpha`` its twin that skips a candidate hit the global
+    ``hidden`` rejects (``tracer.shading.alpha``, bound by ``tracer.kernel.jit.with_globals``).
+    ``alpha`` is a closure constant: without it the test is removed before type inference."""
 
-    Continues a search whose best hit so far is ``(t_key, t_hit, h_inst, h_j, h_prim, hb0, hb1,
-    hb2)``: its key, its distance, its triangle's row ``h_j`` and original index ``h_prim``, and
-    barycentrics; triangles here belong to instance ``inst``. Uses the stacks above ``sp0``.
-    Returns the updated best hit and the work done: ``(t_key, t_hit, h_inst, h_j, h_prim, hb0,
-    hb1, hb2, cost)``.
+    def blas_closest(
+        node_bounds,
+        node_child,
+        tri_verts,
+        tri_prim,
+        root,
+        inst,
+        floor,
+        o,
+        d,
+        t_key,
+        t_hit,
+        h_inst,
+        h_j,
+        h_prim,
+        hb0,
+        hb1,
+        hb2,
+        stack_node,
+        stack_t,
+        sp0,
+        s,
+    ):
+        """Closest-hit traversal of one BVH from node ``root`` (entered with key ``floor``)
+        for the ray ``o + t d``.
 
-    A hit's key is its ``t`` raised to the keys of the boxes the traversal entered to reach it
-    (each box's key is its entry distance, raised to its parent's key). The best hit is the least
-    by (key, instance, triangle): a box is dropped only when its key exceeds the best key, and
-    every hit inside it has a key at least the box's, so what is dropped can never win and the
-    result does not depend on the order of the visits in this tree (nor on a packet's). The key
-    equals ``t`` except where a hit's computed ``t`` rounds below a box's computed entry; only
-    there can another tree over the same triangles (refitted, rebuilt) pick another hit.
-    """
-    ox, oy, oz = o
-    ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
-    cost = 0
-    sp = sp0
-    entry = root
-    entry_key = floor
-    while True:
-        if entry >= 0:
-            # An interior node: go on into the nearest box entered, keep the others.
-            cost += 1
-            t0, c0, t1, c1, t2, c2, t3, c3 = visit(
-                node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, entry_key,
-                t_key,
-            )  # fmt: skip
-            sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
-            if t0 < np.inf:
-                entry = c0
-                entry_key = t0
-                continue
-        else:
-            v = -1 - entry
-            for j in range(v >> 3, (v >> 3) + (v & 7)):
+        Continues a search whose best hit so far is ``(t_key, t_hit, h_inst, h_j, h_prim, hb0,
+        hb1, hb2)``: its key, its distance, its triangle's row ``h_j`` and original index
+        ``h_prim``, and barycentrics; triangles here belong to instance ``inst`` of the scene
+        ``s`` (read by the alpha test only). Uses the stacks above ``sp0``. Returns the updated
+        best hit and the work done: ``(t_key, t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2,
+        cost)``.
+
+        A hit's key is its ``t`` raised to the keys of the boxes the traversal entered to reach
+        it (each box's key is its entry distance, raised to its parent's key). The best hit is
+        the least by (key, instance, triangle): a box is dropped only when its key exceeds the
+        best key, and every hit inside it has a key at least the box's, so what is dropped can
+        never win and the result does not depend on the order of the visits in this tree (nor
+        on a packet's). The key equals ``t`` except where a hit's computed ``t`` rounds below a
+        box's computed entry; only there can another tree over the same triangles (refitted,
+        rebuilt) pick another hit.
+        """
+        ox, oy, oz = o
+        ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
+        cost = 0
+        sp = sp0
+        entry = root
+        entry_key = floor
+        while True:
+            if entry >= 0:
+                # An interior node: go on into the nearest box entered, keep the others.
                 cost += 1
-                t, b0, b1, b2 = intersect_triangle(
-                    tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_key
-                )
-                key = max(t, entry_key)
-                if t < np.inf and closer(key, inst, tri_prim[j], t_key, h_inst, h_prim):
-                    t_key = key
-                    t_hit = t
-                    h_inst = inst
-                    h_j = j
-                    h_prim = tri_prim[j]
-                    hb0 = b0
-                    hb1 = b1
-                    hb2 = b2
-        # Pop the nearest pending box that can still hold a better hit.
-        entry = 0
-        found = False
-        while sp > sp0:
+                t0, c0, t1, c1, t2, c2, t3, c3 = visit(
+                    node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, entry_key,
+                    t_key,
+                )  # fmt: skip
+                sp = push_far(stack_node, stack_t, sp, t1, c1, t2, c2, t3, c3)
+                if t0 < np.inf:
+                    entry = c0
+                    entry_key = t0
+                    continue
+            else:
+                v = -1 - entry
+                for j in range(v >> 3, (v >> 3) + (v & 7)):
+                    cost += 1
+                    t, b0, b1, b2 = intersect_triangle(
+                        tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_key
+                    )
+                    key = max(t, entry_key)
+                    if t < np.inf and closer(key, inst, tri_prim[j], t_key, h_inst, h_prim):
+                        if alpha and hidden(s, inst, j, b0, b1, b2, o, d):  # noqa: F821
+                            continue
+                        t_key = key
+                        t_hit = t
+                        h_inst = inst
+                        h_j = j
+                        h_prim = tri_prim[j]
+                        hb0 = b0
+                        hb1 = b1
+                        hb2 = b2
+            # Pop the nearest pending box that can still hold a better hit.
+            entry = 0
+            found = False
+            while sp > sp0:
+                sp -= 1
+                if stack_t[sp] <= t_key:
+                    entry = stack_node[sp]
+                    entry_key = stack_t[sp]
+                    found = True
+                    break
+            if not found:
+                return t_key, t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost
+
+    return blas_closest
+
+
+blas_closest = jit_inline(closest_traversal(False))
+
+
+def any_hit_traversal(alpha: bool):
+    """:func:`blas_occluded`; with ``alpha`` its twin that passes through a hit the global
+    ``hidden`` rejects (as :func:`closest_traversal`)."""
+
+    def blas_occluded(node_bounds, node_child, tri_verts, root, o, d, t_max, stack_node, sp0, s,
+                      inst):  # fmt: skip
+        """Whether anything in one BVH (from ``root``) lies on ``o + t d``, ``t`` in
+        (0, t_max); its triangles belong to instance ``inst`` of the scene ``s`` (read by the
+        alpha test only). Uses the stack above ``sp0``. Returns ``(hit, cost)``."""
+        ox, oy, oz = o
+        ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
+        cost = 0
+        sp = sp0
+        entry = root
+        while True:
+            if entry >= 0:
+                # An interior node: go on into the first box entered, keep the others.
+                cost += 1
+                entry, sp = enter_any(
+                    node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max,
+                    stack_node, sp,
+                )  # fmt: skip
+                if entry != NO_ENTRY:
+                    continue
+            else:
+                v = -1 - entry
+                for j in range(v >> 3, (v >> 3) + (v & 7)):
+                    cost += 1
+                    t, b0, b1, b2 = intersect_triangle(
+                        tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max
+                    )
+                    if t < t_max:
+                        if alpha and hidden(s, inst, j, b0, b1, b2, o, d):  # noqa: F821
+                            continue
+                        return True, cost
+            if sp == sp0:
+                return False, cost
             sp -= 1
-            if stack_t[sp] <= t_key:
-                entry = stack_node[sp]
-                entry_key = stack_t[sp]
-                found = True
-                break
-        if not found:
-            return t_key, t_hit, h_inst, h_j, h_prim, hb0, hb1, hb2, cost
+            entry = stack_node[sp]
+
+    return blas_occluded
 
 
-@jit_inline
-def blas_occluded(node_bounds, node_child, tri_verts, root, o, d, t_max, stack_node, sp0):
-    """Whether anything in one BVH (from ``root``) lies on ``o + t d``, ``t`` in (0, t_max).
-
-    Uses the stack above ``sp0``. Returns ``(hit, cost)``.
-    """
-    ox, oy, oz = o
-    ix, iy, iz, nx, ny, nz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(o, d)
-    cost = 0
-    sp = sp0
-    entry = root
-    while True:
-        if entry >= 0:
-            # An interior node: go on into the first box entered, keep the others.
-            cost += 1
-            entry, sp = enter_any(
-                node_bounds, node_child, entry, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max,
-                stack_node, sp,
-            )  # fmt: skip
-            if entry != NO_ENTRY:
-                continue
-        else:
-            v = -1 - entry
-            for j in range(v >> 3, (v >> 3) + (v & 7)):
-                cost += 1
-                t, _, _, _ = intersect_triangle(
-                    tri_verts, j, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_max
-                )
-                if t < t_max:
-                    return True, cost
-        if sp == sp0:
-            return False, cost
-        sp -= 1
-        entry = stack_node[sp]
+blas_occluded = jit_inline(any_hit_traversal(False))
 
 
 @jit_inline
@@ -470,7 +494,7 @@ def intersect(node_bounds, node_child, tri_verts, tri_prim, o, d, t_max, stack_n
     """
     _, t, _, j, _, b0, b1, b2, cost = blas_closest(
         node_bounds, node_child, tri_verts, tri_prim, 0, 0, 0.0, o, d, t_max, t_max,
-        NO_INSTANCE, -1, NO_INSTANCE, 0.0, 0.0, 0.0, stack_node, stack_t, 0,
+        NO_INSTANCE, -1, NO_INSTANCE, 0.0, 0.0, 0.0, stack_node, stack_t, 0, None,
     )  # fmt: skip
     return j, t, b0, b1, b2, cost
 
@@ -478,7 +502,7 @@ def intersect(node_bounds, node_child, tri_verts, tri_prim, o, d, t_max, stack_n
 @jit_inline
 def occluded(node_bounds, node_child, tri_verts, o, d, t_max, stack_node):
     """Whether anything in one BVH lies on ``o + t d`` for ``t`` in (0, t_max): (hit, cost)."""
-    return blas_occluded(node_bounds, node_child, tri_verts, 0, o, d, t_max, stack_node, 0)
+    return blas_occluded(node_bounds, node_child, tri_verts, 0, o, d, t_max, stack_node, 0, None, 0)
 
 
 @jit_inline

@@ -109,6 +109,7 @@ def scene_closest(s, o, d, t_max, stack_node, stack_t):
                 stack_node,
                 stack_t,
                 sp,
+                s,
             )
             cost += c_blas
             continue
@@ -172,6 +173,8 @@ def scene_occluded(s, o, d, t_max, stack_node):
                 t_max,
                 stack_node,
                 sp,
+                s,
+                k,
             )
             cost += c_blas
             if blocked:

@@ -28,7 +28,7 @@ from tracer.integrators.flags import (
 )
 from tracer.integrators.registry import REGISTRY
 from tracer.scene import format as fmt
-from tracer.shading import bsdf, lights
+from tracer.shading import bsdf, lights, textures
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,9 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
       shades with normals (all but ``albedo`` and ``depth``); normal maps iff a used material
       has one and the integrator shades with normals; the shadow terminator's falloff iff
       either is needed and the integrator samples lights, and so is bending them toward the
-      viewer.
+      viewer;
+    - the alpha test is needed iff a used material has ``alpha`` (mask or blend) and the
+      integrator's kernels test it (the path kernels).
     """
     table = scene.lights
     weight = table.weight
@@ -210,6 +212,15 @@ def needed_effects(scene, settings: fmt.RenderSettings) -> EffectPlan:
         tilted and integrator.samples_lights,
         "shading normals the viewer may fall below",
         "no shading normals" if not tilted else "no shaded paths",
+    )
+    cut_out = any(scene.textures.alpha[m, textures.MODE] != textures.OPAQUE for m in used)
+    decide(
+        "alpha_test",
+        cut_out and integrator.tests_alpha,
+        "materials with alpha (mask or blend)",
+        "no material has alpha"
+        if not cut_out
+        else f"the {settings.integrator} output sees every surface opaque",
     )
     return EffectPlan(flags, reasons)
 

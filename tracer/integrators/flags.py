@@ -48,6 +48,10 @@ SHADOW_TERMINATOR = 1 << 17
 """Chiang et al.'s falloff of light reflected where shading and geometric normals disagree
 (``tracer.shading.shading_normals.terminator``); off: shading normals without it, as Mitsuba and
 pbrt shade."""
+ALPHA_TEST = 1 << 21
+"""Base-colour alpha where closest-hit and shadow rays meet materials with ``alpha``: a
+``mask`` surface does not exist where its alpha is below the cutoff, a ``blend`` one exists with
+probability alpha (``tracer.shading.alpha``); off: every surface is opaque."""
 
 NO_MIS = 1 << 13
 """Not an effect, and never in a plan ``tracer.integrators.effects`` makes: a sampling switch for
@@ -89,13 +93,15 @@ EFFECTS = {
     "normal_maps": NORMAL_MAPS,
     "shadow_terminator": SHADOW_TERMINATOR,
     "normal_bending": NORMAL_BENDING,
+    "alpha_test": ALPHA_TEST,
 }
 ALL = sum(EFFECTS.values())
 MATERIAL_EFFECTS = SPECULAR | GLOSSY | REFRACTION | ABSORPTION
 """Any of these needs the general BSDF dispatch; without them every surface is Lambertian."""
-SURFACE_DETAIL = TEXTURES | SHADING_NORMALS | NORMAL_MAPS
+SURFACE_DETAIL = TEXTURES | SHADING_NORMALS | NORMAL_MAPS | ALPHA_TEST
 """Any of these needs the kernels' build with the material dispatch too, which alone compiles the
-look-ups of textures, vertex normals and normal maps (``tracer.integrators.path.build_for``)."""
+look-ups of textures, vertex normals and normal maps, and the alpha test in its traversals
+(``tracer.integrators.path.build_for``)."""
 
 LIGHT_KIND_EFFECTS = {
     lights.TRIANGLE: AREA_LIGHTS,

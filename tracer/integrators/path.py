@@ -24,6 +24,7 @@ vertex code cost half of the kernel's compile time.
 import numpy as np
 
 from tracer.compiled.arrays import borrow_scene
+from tracer.geometry.alpha_traversal import traversals
 from tracer.geometry.scene_intersect import material_of, object_of, scene_closest, scene_occluded
 from tracer.integrators import aov, flags
 from tracer.integrators.vertex import BUILDS, SHADERS, build_name, camera_path
@@ -37,9 +38,9 @@ PIXEL_BLOCK = 32
 
 
 def path_kernel(materials: bool, lights: bool):
-    """The path kernel compiled with or without the material dispatch, the surface detail and
-    the light tree (``materials``: BSDFs, textures, vertex normals, normal maps, tree picks) and
-    the point, spot, sun and sky code (``lights``).
+    """The path kernel compiled with or without the material dispatch, the surface detail, the
+    light tree and the alpha test (``materials``: BSDFs, textures, vertex normals, normal maps,
+    tree picks, traversals that test alpha) and the point, spot, sun and sky code (``lights``).
 
     Both pick the build of the vertex shader the kernel inlines (``vertex.SHADERS``), where
     they are constants: the code they switch off is removed before type inference, so a scene
@@ -187,6 +188,7 @@ def path_kernel(materials: bool, lights: bool):
         with_globals(
             trace_pixels,
             shade=SHADERS[(materials, lights)],
+            **traversals(materials),
         )
     )
 

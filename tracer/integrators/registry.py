@@ -19,6 +19,7 @@ from tracer.compiled.light_tree import light_tree_of
 from tracer.compiled.scene import CompiledScene
 from tracer.integrators import path, stream, surface, vertex
 from tracer.integrators.flags import (
+    ALPHA_TEST,
     INDIRECT,
     LIGHT_TREE,
     NORMAL_MAPS,
@@ -53,11 +54,15 @@ class Integrator:
     """Whether its image is the work per pixel as a heat map, not the kernel's ``rgb``."""
     reads_normals: bool = True
     """Whether it shades with normals (the plan's ``SHADING_NORMALS``)."""
+    tests_alpha: bool = True
+    """Whether its kernels test base-colour alpha (the plan's ``ALPHA_TEST``): the path
+    kernels; the surface kernel's outputs see every surface opaque."""
 
 
 def arrays_for_plan(scene: CompiledScene, flags: int) -> SceneArrays:
     """The scene's arrays with only the lights a plan's flags keep (the same arrays when they
-    keep every light the scene has), and the light tree when the plan samples with it."""
+    keep every light the scene has), the light tree when the plan samples with it, and the
+    materials' alpha when it tests alpha."""
     kinds = light_kinds(flags)
     present = {int(k) for k in scene.lights.kind[scene.lights.weight > 0.0]}
     arrays = scene.arrays
@@ -65,6 +70,8 @@ def arrays_for_plan(scene: CompiledScene, flags: int) -> SceneArrays:
         arrays = arrays._replace(**scene_fields(light_arrays(scene.lights, kinds)))
     if flags & LIGHT_TREE:
         arrays = arrays._replace(**light_tree_of(scene)._asdict())
+    if flags & ALPHA_TEST:
+        arrays = arrays._replace(mat_alpha=scene.textures.alpha)
     return arrays
 
 
@@ -135,7 +142,7 @@ def _surface(name: str, output: int) -> Integrator:
     reads_normals = output in (surface.AO, surface.NORMAL)
     return Integrator(
         name, {"single": kernel}, arguments, False, False, output == surface.ALBEDO,
-        reads_normals=reads_normals,
+        reads_normals=reads_normals, tests_alpha=False,
     )  # fmt: skip
 
 

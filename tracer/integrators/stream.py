@@ -17,6 +17,7 @@ bit-identical to ``tracer.integrators.path``'s, however the frame is split.
 import numpy as np
 
 from tracer.compiled.arrays import borrow_scene
+from tracer.geometry.alpha_traversal import traversals
 from tracer.geometry.scene_intersect import material_of, scene_closest, scene_occluded
 from tracer.integrators import flags
 from tracer.integrators.path import PIXEL_BLOCK, build_for
@@ -230,7 +231,9 @@ def stream_kernel(materials: bool, lights: bool):
                 out_rays[row, x] = pixel_rays[lp]
 
     trace_stream.__qualname__ = f"trace_stream_{build_name(materials, lights)}"
-    return jit(with_globals(trace_stream, shade=SHADERS[(materials, lights)]))
+    return jit(
+        with_globals(trace_stream, shade=SHADERS[(materials, lights)], **traversals(materials))
+    )
 
 
 KERNELS = {build: stream_kernel(*build) for build in BUILDS}

@@ -16,6 +16,7 @@ from tracer.maths import portable
 from tracer.scene import format as fmt
 from tracer.scene.environment import EnvironmentMap, check_image
 from tracer.scene.model import NODE_KINDS, Animation, Mesh, Node, SceneState
+from tracer.shading.textures import alpha_texture, material_texture
 
 
 def check_state(state: SceneState) -> None:
@@ -65,15 +66,17 @@ def check_state(state: SceneState) -> None:
 
 
 def check_textures(state: SceneState) -> None:
-    """Raise SceneError unless every texture and normal map a material names is one of the
-    state's images and every mesh node whose material has either has UVs."""
+    """Raise SceneError unless every texture, normal map and alpha texture a material names is
+    one of the state's images (an alpha texture's alpha channel: ``alpha_image_name``) and
+    every mesh node whose material has one has UVs."""
     textured = {}
     for name, material in state.materials.items():
-        for what in ("texture", "normal_map"):
-            texture = getattr(material, what, None)
+        named = (("texture", material_texture(material)),
+                 ("normal map", getattr(material, "normal_map", None)),
+                 ("alpha texture", alpha_texture(material)))  # fmt: skip
+        for label, texture in named:
             if texture is None:
                 continue
-            label = "texture" if what == "texture" else "normal map"
             if texture.file not in state.textures:
                 raise SceneError(
                     f"material {name!r}: its {label} {texture.file!r} is not one of the "

@@ -60,6 +60,7 @@ from tracer.scene.format_lights import (
 )
 from tracer.scene.format_materials import (
     MATERIAL_TYPES,
+    Alpha,
     ConductorMaterial,
     DielectricMaterial,
     DiffuseMaterial,
@@ -80,6 +81,7 @@ __all__ = [
     "MAX_FRAMES",
     "MAX_NAME",
     "MAX_PATH",
+    "Alpha",
     "AnimationSettings",
     "Box",
     "Camera",
@@ -327,6 +329,7 @@ EffectName = Literal[
     "normal_maps",
     "shadow_terminator",
     "normal_bending",
+    "alpha_test",
 ]
 """Effects a user may switch off (docs/effects.md)."""
 

@@ -12,6 +12,7 @@ from tracer.scene.format_base import (
     Radiance,
     Reflectance,
     Strict,
+    Unit,
     type_tag,
 )
 
@@ -46,9 +47,27 @@ class NormalMap(Texture):
     )
 
 
+class Alpha(Strict):
+    """Base-colour alpha (glTF's ``alphaMode``): where a surface exists. Its alpha is ``value``
+    times the alpha channel of ``texture`` (read linearly, bilinear through the mesh's UVs).
+    ``mask``: the surface exists where alpha >= ``cutoff`` and rays pass through it elsewhere;
+    ``blend``: a ray meets it with probability alpha (docs/materials.md, *Alpha*)."""
+
+    mode: Literal["mask", "blend"] = Field(description="Cut out (mask) or partly there (blend)")
+    cutoff: NonNegative = Field(
+        default=0.5, description="mask: the surface exists where alpha >= cutoff"
+    )
+    value: Unit = Field(default=1.0, description="Alpha, or the factor of the texture's alpha")
+    texture: Texture | None = Field(
+        default=None,
+        description="An image whose alpha channel multiplies value (it must have one); the "
+        "mesh must have UVs",
+    )
+
+
 class _Opaque(Strict):
-    """What every opaque material has: emission (an area light), sidedness and an optional
-    base-colour texture."""
+    """What every opaque material has: emission (an area light), sidedness, an optional
+    base-colour texture and normal map, and optional alpha (cut-outs)."""
 
     emission: Radiance = Field(
         default=(0.0, 0.0, 0.0), description="Emitted radiance, linear RGB (W sr^-1 m^-2)"
@@ -68,6 +87,16 @@ class _Opaque(Strict):
         description="A tangent-space normal map through the mesh's UVs (the mesh must have "
         "UVs); it tilts the shading normal",
     )
+    alpha: Alpha | None = Field(
+        default=None,
+        description="Cut-outs (mask) or partial coverage (blend); not on emitters",
+    )
+
+    @model_validator(mode="after")
+    def _check_alpha(self) -> "_Opaque":
+        if self.alpha is not None and max(self.emission) > 0.0:
+            raise ValueError("alpha is not supported on emissive materials")
+        return self
 
 
 class DiffuseMaterial(_Opaque):

@@ -53,7 +53,8 @@ MATERIAL_WARNINGS = {
     "metallicRoughnessTexture": "metallicRoughnessTexture approximated: its mean metallic and "
     "roughness, one value per material",
     "emissiveTexture": "emissiveTexture approximated: its mean colour, uniform over the material",
-    "alphaMode": "alphaMode MASK/BLEND ignored: surfaces are opaque",
+    "alphaMode": "alphaMode MASK/BLEND ignored on glass (KHR_materials_transmission) and "
+    "emissive materials: they are opaque",
     "transmission": "KHR_materials_transmission approximated: glass at a "
     "transmissionFactor of 0.5 or more (no transmissionTexture), else opaque",
     "KHR_materials_pbrSpecularGlossiness": "KHR_materials_pbrSpecularGlossiness approximated: "
@@ -131,9 +132,9 @@ def used_features(document: dict) -> set[str]:
         metallic = pbr.get("metallicFactor", 1.0)
         if isinstance(metallic, int | float) and 0.0 < metallic < 1.0:
             used.add("metallicFactor")
-        if material.get("alphaMode", "OPAQUE") in ("MASK", "BLEND"):
-            used.add("alphaMode")
         extensions = material.get("extensions", {}) or {}
+        if material.get("alphaMode", "OPAQUE") in ("MASK", "BLEND") and _opaque_kind(material):
+            used.add("alphaMode")
         named |= set(extensions)
         transmission = extensions.get("KHR_materials_transmission", {}) or {}
         factor = transmission.get("transmissionFactor", 0.0)
@@ -157,6 +158,17 @@ def used_features(document: dict) -> set[str]:
     if isinstance(listed, list):
         named |= {name for name in listed if isinstance(name, str)}
     return used | (named - READ_EXTENSIONS)
+
+
+def _opaque_kind(material: dict) -> bool:
+    """Whether a material becomes glass or an emitter, which take no alpha (by its JSON)."""
+    extensions = material.get("extensions", {}) or {}
+    transmission = extensions.get("KHR_materials_transmission", {}) or {}
+    factor = transmission.get("transmissionFactor", 0.0)
+    glass = isinstance(factor, int | float) and factor >= 0.5
+    emissive = material.get("emissiveFactor", [0.0, 0.0, 0.0])
+    lit = isinstance(emissive, list) and any(isinstance(e, int | float) and e > 0 for e in emissive)
+    return glass or lit
 
 
 def feature_warnings(

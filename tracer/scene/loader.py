@@ -44,7 +44,7 @@ from tracer.scene.model import (
     make_mesh,
 )
 from tracer.scene.shapes import rectangle, shape_mesh, shape_normals, shape_uvs
-from tracer.shading.textures import material_texture, read_texture
+from tracer.shading.textures import alpha_image_name, material_texture, read_texture
 
 IDENTITY = frozen_array(np.eye(4), np.float64)
 
@@ -315,12 +315,18 @@ def material_textures(materials: dict[str, fmt.Material], scene_dir: Path) -> di
     written), as ``tracer.shading.textures`` pixels."""
     textures: dict = {}
     for name, material in materials.items():
-        for what, texture in (("texture", material_texture(material)),
-                              ("normal_map", getattr(material, "normal_map", None))):  # fmt: skip
-            if texture is not None and texture.file not in textures:
+        alpha = getattr(material, "alpha", None)
+        named = (("texture", material_texture(material), False),
+                 ("normal_map", getattr(material, "normal_map", None), False),
+                 ("alpha.texture", None if alpha is None else alpha.texture, True))  # fmt: skip
+        for what, texture, alpha_channel in named:
+            if texture is None:
+                continue
+            key = alpha_image_name(texture.file) if alpha_channel else texture.file
+            if key not in textures:
                 path = resolve_reference(scene_dir, texture.file)
                 label = f"materials.{name}.{what}: {texture.file}"
-                textures[texture.file] = read_texture(path, label)
+                textures[key] = read_texture(path, label, alpha=alpha_channel)
     return textures
 
 

@@ -20,10 +20,16 @@ from tracer.errors import SceneError
 from tracer.maths import portable
 from tracer.scene import format as fmt
 from tracer.scene import gltf_features, vertex_normals
+from tracer.scene.gltf_alpha import alpha_mode, check_alpha, material_alpha
 from tracer.scene.gltf_cameras import camera_nodes
 from tracer.scene.gltf_texture_transform import material_uv_matrix, transformed_uvs
 from tracer.scene.model import Mesh, frozen_array, make_mesh, placed
-from tracer.shading.textures import srgb_to_linear, texture_from_image
+from tracer.shading.textures import (
+    alpha_from_image,
+    alpha_image_name,
+    srgb_to_linear,
+    texture_from_image,
+)
 
 METALLIC_THRESHOLD = 0.5
 """A glTF material at least this metallic becomes a conductor, below it a plastic."""
@@ -39,11 +45,12 @@ MIN_ATTENUATION = 1e-6
 
 def load_trimesh(path: Path):
     """Whatever trimesh makes of ``path`` (a Trimesh or a Scene); SceneError if it cannot. A
-    glTF file's cameras are checked first: trimesh reads them too, and fails obscurely on a
-    bad one."""
+    glTF file's cameras and materials' alpha are checked first: trimesh reads them too, and
+    fails obscurely on a bad one."""
     document = gltf_features.gltf_json(path)
     if document is not None:
         camera_nodes(document, path.name)
+        check_alpha(document, path.name)
     logging.getLogger("trimesh").setLevel(logging.ERROR)
     try:
         return trimesh.load(str(path), process=False)
@@ -254,6 +261,10 @@ class _MaterialMapper:
         converted = self.convert(material, key)
         if not uvs_present and getattr(converted, "texture", None) is not None:
             converted = converted.model_copy(update={"texture": None})
+        alpha = getattr(converted, "alpha", None)
+        if not uvs_present and alpha is not None and alpha.texture is not None:
+            alpha = alpha.model_copy(update={"texture": None})
+            converted = converted.model_copy(update={"alpha": alpha})
         if not uvs_present and getattr(converted, "normal_map", None) is not None:
             converted = converted.model_copy(update={"normal_map": None})
             key += " (no UVs)"
@@ -281,6 +292,18 @@ class _MaterialMapper:
             self.image_keys[id(image)] = name
         return fmt.Texture(file=self.image_keys[id(image)], wrap=wrap)
 
+    def alpha_texture(self, image) -> fmt.Texture | None:
+        """A texture model of a PIL image's alpha channel (stored once, as the grey image
+        ``alpha_image_name`` of the image's name), or None if it has none."""
+        texture = self.texture(image)
+        name = alpha_image_name(texture.file)
+        if name not in self.textures:
+            pixels = alpha_from_image(image, f"{self.path.name}: {texture.file}")
+            if pixels is None:
+                return None
+            self.textures[name] = pixels
+        return texture
+
     def normal_map(self, image, spec: dict) -> fmt.NormalMap | None:
         """A glTF ``normalTexture`` as a normal map (its ``scale`` the strength), or None."""
         if image is None:
@@ -293,7 +316,7 @@ class _MaterialMapper:
     def convert(self, material, label: str) -> fmt.Material:
         if isinstance(material, trimesh.visual.material.PBRMaterial):
             spec = self.gltf.get(material.name, {}) if material.name else {}
-            return self.pbr(material, spec)
+            return self.pbr(material, spec, label)
         if isinstance(material, trimesh.visual.material.SimpleMaterial):
             texture = None if material.image is None else self.texture(material.image)
             return fmt.DiffuseMaterial(
@@ -302,7 +325,7 @@ class _MaterialMapper:
             )
         return fmt.DiffuseMaterial(reflectance=(1.0, 1.0, 1.0))
 
-    def pbr(self, material, spec: dict) -> fmt.Material:
+    def pbr(self, material, spec: dict, label: str) -> fmt.Material:
         """A glTF metallic-roughness material as ours (docs/materials.md has the table);
         ``spec`` is the material's own JSON when it can be found (exact factors and the
         KHR extensions trimesh does not keep)."""
@@ -335,6 +358,12 @@ class _MaterialMapper:
                 ior=min(max(ior, 1.0), 10.0),
                 absorption=_absorption(extensions.get("KHR_materials_volume", {})),
             )
+        alpha = None
+        where = f"{self.path.name}: material {material.name or label!r}"
+        if emission.max() <= 0.0 and alpha_mode(spec, material, where) != "OPAQUE":
+            image = material.baseColorTexture  # emitters stay opaque (gltf_features warns)
+            texture = None if image is None else self.alpha_texture(image)
+            alpha = material_alpha(spec, material, texture, where)
         common = {
             "reflectance": _colour(base),
             "roughness": min(max(roughness, 0.0), 1.0),
@@ -344,6 +373,7 @@ class _MaterialMapper:
             if material.baseColorTexture is None
             else self.texture(material.baseColorTexture),
             "normal_map": self.normal_map(getattr(material, "normalTexture", None), spec),
+            "alpha": alpha,
         }
         if metallic >= METALLIC_THRESHOLD:
             return fmt.ConductorMaterial(type="conductor", **common)

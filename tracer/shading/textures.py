@@ -7,6 +7,10 @@ array of linear RGB texels with a row of ``(offset, width, height, wrap)`` per t
 (:func:`texture_at`): ``u`` runs left to right, ``v`` bottom to top, texel centres at
 ``((i + 0.5) / W, 1 - (j + 0.5) / H)``, bilinear between the four nearest texels, and outside
 [0, 1] either repeated or clamped to the edge texels. docs/materials.md states the conventions.
+
+A material's alpha (``fmt.Alpha``) reads an image's alpha channel, held as a grey image of its
+own (``alpha_image_name``) and packed linearly like a normal map; the table's ``alpha`` rows are
+what ``tracer.shading.alpha`` tests at hits.
 """
 
 import math
@@ -30,6 +34,15 @@ WRAP_MODES = {"repeat": REPEAT, "clamp": CLAMP}
 UV_LIMIT = 1e15
 """A scaled UV of larger magnitude (or NaN) is looked up at 0: past it a float64 has no
 fraction left to tile with."""
+OPAQUE = 0
+MASK = 1
+BLEND = 2
+ALPHA_MODES = {"mask": MASK, "blend": BLEND}
+MODE, CUTOFF, VALUE, ENTRY = range(4)
+"""Columns of ``TextureTable.alpha``: mode, cutoff, value, the alpha image's entry (or -1)."""
+ALPHA_SUFFIX = "#alpha"
+NO_ALPHA = np.zeros((0, 4), dtype=np.float64)
+"""The kernels' alpha table of a plan without ``flags.ALPHA_TEST``: no hit is tested."""
 
 
 def srgb_to_linear(values: np.ndarray) -> np.ndarray:
@@ -40,9 +53,7 @@ def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     return table[np.asarray(values, dtype=np.uint8)]
 
 
-def texture_from_image(image: Image.Image, label: str) -> np.ndarray:
-    """An image as texture pixels: uint8 (H, W, 3), read-only. Grey images become grey RGB,
-    palettes are expanded, alpha is dropped; 16-bit grey is rounded to 8 bits."""
+def _check_size(image: Image.Image, label: str) -> None:
     width, height = image.size
     if not (0 < width <= config.MAX_TEXTURE_SIDE and 0 < height <= config.MAX_TEXTURE_SIDE):
         raise SceneError(
@@ -54,6 +65,13 @@ def texture_from_image(image: Image.Image, label: str) -> np.ndarray:
             f"{label}: the image has {width * height} pixels, more than the limit of "
             f"{config.MAX_TEXTURE_PIXELS}"
         )
+
+
+def texture_from_image(image: Image.Image, label: str) -> np.ndarray:
+    """An image as texture pixels: uint8 (H, W, 3), read-only. Grey images become grey RGB,
+    palettes are expanded, alpha is dropped (``alpha_from_image`` reads it); 16-bit grey is
+    rounded to 8 bits."""
+    _check_size(image, label)
     try:
         if image.mode.startswith("I"):  # 16- or 32-bit integer grey
             grey = np.asarray(image, dtype=np.float64)
@@ -70,11 +88,35 @@ def texture_from_image(image: Image.Image, label: str) -> np.ndarray:
     return frozen_array(pixels, np.uint8)
 
 
-def read_texture(path: Path, label: str) -> np.ndarray:
-    """The texture pixels of the image file ``path`` (any format Pillow reads)."""
+def alpha_image_name(file: str) -> str:
+    """The name of the grey image holding the alpha channel of the image named ``file``."""
+    return file + ALPHA_SUFFIX
+
+
+def alpha_from_image(image: Image.Image, label: str) -> np.ndarray | None:
+    """An image's alpha channel as a grey texture, uint8 (H, W, 3) read-only; None if the image
+    has no alpha (no alpha band, no palette transparency)."""
+    _check_size(image, label)
+    if "A" not in image.getbands() and "transparency" not in image.info:
+        return None
+    try:
+        alpha = np.asarray(image.convert("RGBA"), dtype=np.uint8)[:, :, 3]
+    except (OSError, ValueError) as exc:
+        raise SceneError(f"{label}: cannot decode the image ({exc})") from None
+    return frozen_array(np.repeat(alpha[:, :, None], 3, axis=2), np.uint8)
+
+
+def read_texture(path: Path, label: str, alpha: bool = False) -> np.ndarray:
+    """The texture pixels of the image file ``path`` (any format Pillow reads), or with
+    ``alpha`` its alpha channel (``alpha_from_image``; an image without one is refused)."""
     try:
         with Image.open(path) as image:
-            return texture_from_image(image, label)
+            if not alpha:
+                return texture_from_image(image, label)
+            pixels = alpha_from_image(image, label)
+            if pixels is None:
+                raise SceneError(f"{label}: the image has no alpha channel")
+            return pixels
     except UnidentifiedImageError:
         raise SceneError(f"{label}: not an image file Pillow can read") from None
     except Image.DecompressionBombError as exc:
@@ -86,6 +128,15 @@ def read_texture(path: Path, label: str) -> np.ndarray:
 def material_texture(material: fmt.Material) -> fmt.Texture | None:
     """The material's base-colour texture, or None."""
     return getattr(material, "texture", None)
+
+
+def alpha_texture(material: fmt.Material) -> fmt.Texture | None:
+    """The material's alpha texture, its ``file`` the scene image of its alpha channel (or
+    None)."""
+    alpha = getattr(material, "alpha", None)
+    if alpha is None or alpha.texture is None:
+        return None
+    return alpha.texture.model_copy(update={"file": alpha_image_name(alpha.texture.file)})
 
 
 def linear_texels(values: np.ndarray) -> np.ndarray:
@@ -100,9 +151,11 @@ class TextureTable:
     ``pixels`` float32 (N, 3) linear RGB, each image's rows top to bottom; ``info`` int64
     (T, 4): first texel, width, height and wrap mode (``REPEAT``, ``CLAMP``); ``scale`` float64
     (T, 2): the UV scale; ``material`` int32 (Q,): each material's entry, or -1;
-    ``normal_map`` int32 (Q,) its normal map's entry (texels read linearly), or -1, and
-    ``normal_strength`` float64 (Q,) the map's strength. ``sources`` is what it was packed from
-    (compared by identity for reuse)."""
+    ``normal_map`` int32 (Q,) its normal map's entry (texels read linearly), or -1,
+    ``normal_strength`` float64 (Q,) the map's strength, and ``alpha`` float64 (Q, 4) each
+    material's alpha (columns ``MODE``, ``CUTOFF``, ``VALUE``, ``ENTRY``: its alpha image's
+    entry, texels read linearly, or -1). ``sources`` is what it was packed from (compared by
+    identity for reuse)."""
 
     sources: tuple
     pixels: np.ndarray
@@ -111,6 +164,7 @@ class TextureTable:
     material: np.ndarray
     normal_map: np.ndarray
     normal_strength: np.ndarray
+    alpha: np.ndarray
 
     def fields(self) -> dict[str, np.ndarray]:
         """The ``SceneArrays`` fields made from the table."""
@@ -121,6 +175,7 @@ class TextureTable:
             "tex_pixels": self.pixels,
             "tex_info": self.info,
             "tex_scale": self.scale,
+            "mat_alpha": NO_ALPHA,
         }
 
 
@@ -133,9 +188,11 @@ def texture_table(
     material = np.full(len(materials), -1, dtype=np.int32)
     normal_map = np.full(len(materials), -1, dtype=np.int32)
     normal_strength = np.zeros(len(materials), dtype=np.float64)
+    alpha_entry = np.full(len(materials), -1, dtype=np.int32)
     for i, m in enumerate(materials):
         pairs = ((material, material_texture(m), False),
-                 (normal_map, getattr(m, "normal_map", None), True))  # fmt: skip
+                 (normal_map, getattr(m, "normal_map", None), True),
+                 (alpha_entry, alpha_texture(m), True))  # fmt: skip
         for column, texture, linear in pairs:
             if texture is not None:
                 key = (texture.file, linear, texture.wrap, tuple(texture.scale))
@@ -164,7 +221,19 @@ def texture_table(
         height, width = textures[file].shape[:2]
         info[row] = (first[file, linear], width, height, WRAP_MODES[wrap])
         scale[row] = uv_scale
-    return TextureTable(sources, pixels, info, scale, material, normal_map, normal_strength)
+    alpha = alpha_rows(materials, alpha_entry)
+    return TextureTable(sources, pixels, info, scale, material, normal_map, normal_strength, alpha)
+
+
+def alpha_rows(materials: list[fmt.Material], entry: np.ndarray) -> np.ndarray:
+    """``TextureTable.alpha``: each material's alpha mode, cutoff, value and image entry."""
+    rows = np.zeros((len(materials), 4), dtype=np.float64)
+    rows[:, ENTRY] = entry
+    for i, m in enumerate(materials):
+        alpha = getattr(m, "alpha", None)
+        if alpha is not None:
+            rows[i, :ENTRY] = (ALPHA_MODES[alpha.mode], alpha.cutoff, alpha.value)
+    return rows
 
 
 def _same_sources(a: tuple, b: tuple) -> bool:
