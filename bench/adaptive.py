@@ -16,8 +16,9 @@ import argparse
 import math
 import statistics
 import time
+from pathlib import Path
 
-import numpy as np
+from adaptive_figures import spp_map_figure
 from common import (
     REPO_ROOT,
     machine_info,
@@ -31,7 +32,7 @@ from common import (
 from cli.accuracy import StudyOptions, study_size
 from cli.accuracy_reference import independent_reference, own_reference, reference_settings
 from cluster.progressive import Goal, ProgressiveFrame, SpotCheck
-from tracer.accuracy.error_estimate import noise_floor, rel_mse
+from tracer.accuracy.error_estimate import noise_floor, rel_mse, rel_mse_terms
 from tracer.accuracy.spot_check import render_spot_checks
 from tracer.compiled.scene import compile_scene
 from tracer.integrators.effects import effect_plan
@@ -61,7 +62,16 @@ def study_arguments(description: str, scenes: tuple[str, ...], repeats: int):
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    return study_arguments(__doc__.split("\n\n")[0], SCENES, 5).parse_args(argv)
+    parser = study_arguments(__doc__.split("\n\n")[0], SCENES, 5)
+    parser.add_argument(
+        "--figures",
+        type=str,
+        default=None,
+        metavar="DIR",
+        help="write adaptive-spp-SCENE.png there: the first round's adaptive frame at the target, "
+        "its samples per pixel, the uniform frame's error per pixel (docs/accuracy/ for the docs)",
+    )
+    return parser.parse_args(argv)
 
 
 def setup(name: str, pixels: int, threads: int | None, reference_spp: int | None = None):
@@ -90,17 +100,22 @@ def setup(name: str, pixels: int, threads: int | None, reference_spp: int | None
     return scene, camera, ref.settings, ref, noise_floor(ref.mean, ref.var_of_mean)
 
 
-def frame_run(scene, camera, settings, ref, floor, mode, max_spp, threads) -> list[dict]:
+def frame_run(
+    scene, camera, settings, ref, floor, mode, max_spp, threads, snapshot: dict | None = None
+) -> list[dict]:
     """One progressive frame until its true relative MSE is below half the target: after
-    each wave, its render seconds (waves, spot checks and the frame's arithmetic), mean spp,
-    true relative MSE and the estimate's square."""
+    each wave, its render seconds (waves, spot checks and the frame's arithmetic; the spot
+    checks' alone), mean spp,
+    the samples its parts took (counted off the parts rendered), true relative MSE and the
+    estimate's square. ``snapshot``, if given, is filled at the first wave at or below the
+    target (``bench/adaptive_figures.py``: image, samples per pixel, error per pixel)."""
     plan = effect_plan(scene, settings)
     pixels = camera.width * camera.height
     clock = [0.0]
     progress = ProgressiveFrame(
         camera.width, camera.height, Goal(max_spp=max_spp), lambda: clock[0], adaptive=mode
     )
-    records = []
+    records, samples, checking = [], 0, 0.0
     while True:
         start = time.perf_counter()
         step = progress.next_part()
@@ -112,6 +127,7 @@ def frame_run(scene, camera, settings, ref, floor, mode, max_spp, threads) -> li
                 plan,
             )  # fmt: skip
             progress.add_spot_checks(step.pixels, parts, 0.0, work)
+            checking += time.perf_counter() - start
         else:
             part = fmt.override(settings, spp=step.spp)
             run = render_pixels(
@@ -119,6 +135,7 @@ def frame_run(scene, camera, settings, ref, floor, mode, max_spp, threads) -> li
             )
             rgb = run.rgb.reshape(camera.height, camera.width, 3)
             progress.add_part(rgb, 0.0, float(run.cost.sum()))
+            samples += pixels * step.spp if step.counts is None else int(step.counts.sum())
         waves = len(progress.waves)
         clock[0] += time.perf_counter() - start
         if waves > len(records):
@@ -127,13 +144,19 @@ def frame_run(scene, camera, settings, ref, floor, mode, max_spp, threads) -> li
             records.append(
                 {
                     "seconds": clock[0],
+                    "check_seconds": checking,
                     "spp": wave.spp,
                     "mean_spp": wave.mean_spp,
+                    "samples": samples,
                     "rel_mse": error,
                     "estimate": None if wave.error is None else wave.error**2,
                     "adaptive": wave.adaptive,
                 }
             )
+            if snapshot is not None and not snapshot and error <= TARGET:
+                terms = rel_mse_terms(progress.image, ref.mean).mean(axis=2)
+                snapshot.update(image=progress.image, pixel_spp=progress.pixel_spp, terms=terms,
+                                rel_mse=error, mean_spp=wave.mean_spp)  # fmt: skip
             if error < TARGET / 2:
                 break
     return records
@@ -166,13 +189,21 @@ def main(argv: list[str] | None = None) -> int:
         scene, camera, settings, ref, floor = setup(name, args.pixels, args.threads)
         frame_run(scene, camera, fmt.override(settings, spp=1), ref, floor, "off", 8, 1)  # warm
         runs = {mode: [] for mode in MODES}
+        snapshots = {mode: {} for mode in MODES}
         for round_index in range(args.repeats):
             seeded = fmt.override(settings, seed=settings.seed + 7919 * round_index)
             for mode in MODES:
+                keep = snapshots[mode] if round_index == 0 else None
                 runs[mode].append(
-                    frame_run(scene, camera, seeded, ref, floor, mode, args.max_spp, args.threads)
+                    frame_run(
+                        scene, camera, seeded, ref, floor, mode, args.max_spp, args.threads, keep
+                    )
                 )
         results[name] = summarise(runs, camera, floor)
+        if args.figures is not None and snapshots["on"]:
+            Path(args.figures).mkdir(parents=True, exist_ok=True)
+            path = Path(args.figures) / f"adaptive-spp-{name}.png"
+            spp_map_figure(name, TARGET, snapshots["on"], snapshots["off"] or None, path)
     report(results)
     write_results("adaptive", {"options": vars(args), "scenes": results}, info)
     return 0
@@ -214,7 +245,7 @@ def report(results: dict) -> None:
     for name, result in results.items():
         modes = result["modes"]
         on, auto = modes["on"]["speedup_paired_median"], modes["auto"]["speedup_paired_median"]
-        calib = modes["on"]["estimate_over_true"]
+        calib = [_fmt(_median(modes[m]["estimate_over_true"]), 2) for m in ("off", "on")]
         rows.append(
             [
                 name,
@@ -223,7 +254,7 @@ def report(results: dict) -> None:
                 *(_fmt(modes[m]["median_spp"], 0) for m in MODES),
                 _fmt(on, 2),
                 _fmt(auto, 2),
-                _fmt(float(np.median(calib)) if calib else None, 2),
+                *calib,
                 styled_verdict(verdict(on or 0.0, SPEEDUP)),
                 styled_verdict(verdict(auto or 0.0, 1 / SLOWDOWN)),
             ]
@@ -232,13 +263,13 @@ def report(results: dict) -> None:
         f"Render seconds to relMSE {TARGET:g}, progressive frames",
         [
             "scene", "size", "s off", "s on", "s auto", "spp off", "spp on", "spp auto",
-            "off/on", "off/auto", "est/true on", f"on >= {SPEEDUP:g}x",
+            "off/on", "off/auto", "est/true off", "est/true on", f"on >= {SPEEDUP:g}x",
             f"auto >= 1/{SLOWDOWN:g}",
         ],
         rows,
         caption="seconds and mean spp: medians over the rounds; off/on, off/auto: median of the "
         "per-round ratios; est/true: the estimated over the true relative MSE at the first "
-        "wave past the target (adaptive on)",
+        "wave past the target, median over the rounds",
     )  # fmt: skip
 
 

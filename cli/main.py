@@ -344,7 +344,8 @@ def add_quality_options(parser: argparse.ArgumentParser) -> None:
         "--max-spp",
         type=positive_int,
         metavar="N",
-        help="with --target-error or --time-budget: stop at N samples per pixel (default 65536)",
+        help="with --target-error or --time-budget: stop at N samples per pixel (their mean with "
+        "adaptive sampling; default 65536)",
     )
 
 

@@ -7,13 +7,15 @@ for a given number of samples the relative MSE, the mean of ``r / N``, is least 
 proportional to ``sqrt(r)``. Four parts give ``r`` with three degrees of freedom, so it is
 smoothed: the mean of each 3x3 neighbourhood, then the largest such mean around each pixel (a
 pixel beside a noisy one samples as it does). A pixel's *rate* is ``sqrt`` of that over its
-``QUANTILE``, clipped to ``[MIN_RATE, 1]``; a wave of ``s`` samples per part gives it
+mean over the image, clipped to ``[MIN_RATE, MAX_RATE]``: the wave's samples are shared out,
+not only cut where the noise is low. A wave of ``s`` samples per part on average gives it
 ``ceil(rate * s)`` of them (at least 1: every part keeps every pixel), the first ones of the
-part's sample range, so sample indices stay disjoint across parts and waves.
+part's sample range, which is as long as the most any pixel takes; sample indices stay
+disjoint across parts and waves.
 
-Every step is element-wise float64 arithmetic, a sort, or an exactly rounded sum
-(``math.fsum``) of pixels that are the same bits however the frame was split: the counts are
-the same on any CPU and for any split, and depend on the earlier waves' pixels only.
+Every step is element-wise float64 arithmetic or an exactly rounded sum (``math.fsum``) of
+pixels that are the same bits however the frame was split: the counts are the same on any CPU
+and for any split, and depend on the earlier waves' pixels only.
 
 ``auto`` samples adaptively only where it is predicted to win: the relative MSE at equal
 samples, ``mean(r) / (mean(r / rate) * mean(rate))``, at least ``AUTO_GAIN`` times lower.
@@ -27,12 +29,12 @@ from tracer.accuracy.error_estimate import estimated_terms, max_filter3
 from tracer.integrators.names import ADAPTIVE as MODES
 
 MIN_RATE = 1 / 8
-"""Fewest of a wave's samples a pixel takes, as a share of the uniform wave's."""
-QUANTILE = 0.9
-"""The smoothed noise at which pixels take every sample of a wave: the noisiest tenth does."""
+"""Fewest of a wave's samples a pixel takes, as a share of the wave's mean."""
+MAX_RATE = 16.0
+"""Most of a wave's samples a pixel takes, as a multiple of the wave's mean."""
 AUTO_GAIN = 1.2
 """Least predicted gain (relative MSE at equal samples) at which ``auto`` is adaptive."""
-START_PART_SPP = 4
+START_PART_SPP = 2
 """Samples per part every pixel has before the first adaptive wave."""
 
 
@@ -55,14 +57,13 @@ def _box3(image: np.ndarray) -> np.ndarray:
 
 
 def sample_rates(r: np.ndarray) -> np.ndarray | None:
-    """Each pixel's rate (H, W) in ``[MIN_RATE, 1]`` from its variance per sample ``r``
-    (:func:`per_sample_variance`), or None when nothing is noisy (every rate would be 1)."""
+    """Each pixel's rate (H, W) in ``[MIN_RATE, MAX_RATE]``, about 1 on average, from its
+    variance per sample ``r`` (:func:`per_sample_variance`), or None when nothing is noisy."""
     noise = np.sqrt(max_filter3(_box3(r)[..., None])[..., 0])
-    ranked = np.sort(noise, axis=None)
-    scale = ranked[int(QUANTILE * (ranked.size - 1))]
+    scale = mean(noise)
     if not scale > 0.0:
         return None
-    return np.clip(noise / scale, MIN_RATE, 1.0)
+    return np.clip(noise / scale, MIN_RATE, MAX_RATE)
 
 
 def mean(values: np.ndarray) -> float:
@@ -95,5 +96,6 @@ def next_rates(
 
 
 def wave_counts(rates: np.ndarray, spp: int) -> np.ndarray:
-    """Samples per part of each pixel (int32, row-major) in a wave of ``spp`` per part."""
-    return np.clip(np.ceil(rates * spp), 1, spp).astype(np.int32).reshape(-1)
+    """Samples per part of each pixel (int32, row-major) in a wave of ``spp`` per part on
+    average."""
+    return np.maximum(np.ceil(rates * spp), 1).astype(np.int32).reshape(-1)

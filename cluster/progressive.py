@@ -18,10 +18,12 @@ earlier waves (``tracer.accuracy.spot_check``).
 
 With adaptive sampling (``cluster.adaptive``; ``mode`` ``auto``, ``on`` or ``off``), a wave
 gives each pixel the first ``counts[i]`` of its parts' samples, by the pixel's estimated share
-of the error after the earlier waves; every part of a wave gives a pixel the same count, so
-each pixel's parts stay independent and identically distributed, and the estimate stays
-calibrated. ``spp`` stays the sample range the waves used (the most any pixel took),
-:attr:`ProgressiveFrame.pixel_spp` is what each pixel took.
+of the error after the earlier waves: a noisy pixel may take more than the wave's mean, a
+quiet one less. Every part of a wave gives a pixel the same count, so each pixel's parts stay
+independent and identically distributed, and the estimate stays calibrated. Waves are sized
+by the mean samples per pixel; ``spp`` is the sample range the waves used (each wave's as long
+as the most a pixel took), :attr:`ProgressiveFrame.pixel_spp` is what each pixel took;
+``max_spp`` bounds their mean.
 
 A frame that is to be denoised (:class:`DenoisedTarget`) measures the target on the denoised
 image instead, once its parts are deep enough for that estimate
@@ -71,8 +73,9 @@ prediction falls just short about half the time, which costs a whole extra wave.
 class Goal:
     """When a progressive frame stops: at ``target_error`` (estimated relative RMS error,
     ``tracer.accuracy.error_estimate``; of the denoised frame where :class:`DenoisedTarget` says
-    so), after ``time_budget`` seconds, or at ``max_spp`` samples per pixel, whichever comes
-    first. At least one wave (``PARTS`` spp) is always rendered."""
+    so), after ``time_budget`` seconds, or at ``max_spp`` samples per pixel (on average, with
+    adaptive sampling), whichever comes first. At least one wave (``PARTS`` spp) is always
+    rendered."""
 
     target_error: float | None = None
     time_budget: float | None = None
@@ -278,8 +281,10 @@ class ProgressiveFrame:
             first = self._wave_parts[0]
             spp, counts = first.spp, first.counts
         else:
-            spp = self._next_part_spp()
-            counts = None if self._rates is None else adaptive.wave_counts(self._rates, spp)
+            spp, counts = self._next_part_spp(), None
+            if self._rates is not None:
+                counts = adaptive.wave_counts(self._rates, spp)
+                spp = int(counts.max())
         self._pending = Part(self.spp, spp, len(self._wave_parts), counts)
         return self._pending
 
@@ -326,7 +331,7 @@ class ProgressiveFrame:
         self._wave_parts = []
         self._last_wave = (PARTS * wave_spp, self._wave_seconds)
         self._wave_adaptive = part.counts is not None
-        self._pending = self._ledger.plan(self._parts(), self.spp, self.work)
+        self._pending = self._ledger.plan(self._parts(), PARTS * self.part_counts, self.work)
         if self._pending is None:
             self._end_wave()
 
@@ -400,7 +405,7 @@ class ProgressiveFrame:
             if self.error <= goal.target_error:
                 self.stopped = "target_error"
                 return
-        if goal.max_spp - self.spp < PARTS:
+        if goal.max_spp - self.mean_spp < PARTS:
             self.stopped = "max_spp"
         elif goal.time_budget is not None and self._fits_in_budget() < 1:
             self.stopped = "time_budget"
@@ -414,18 +419,24 @@ class ProgressiveFrame:
         return int(remaining / (PARTS * wave_seconds / wave_spp))
 
     def _next_part_spp(self) -> int:
-        """Samples per part of the next wave (at least 1: ``_check_stop`` stopped the frame
-        if none fits)."""
+        """Samples per part of the next wave, on average over the pixels (at least 1:
+        ``_check_stop`` stopped the frame if none fits). Waves double the mean samples so far
+        (the sample range, without adaptive sampling)."""
         goal = self.goal
         if self.spp == 0:
             return 1
-        spp = min(MAX_PART_SPP, self.part_spp, (goal.max_spp - self.spp) // PARTS)
+        taken = self.mean_spp
+        share = 1.0 if self._rates is None else adaptive.mean(self._rates)
+        room = int((goal.max_spp - taken) / (PARTS * share))
+        spp = min(MAX_PART_SPP, int(taken) // PARTS, room)
         if goal.target_error is not None and self.error is not None and self.error > 0.0:
-            needed = self.spp * (self.error / goal.target_error) ** 2 * PLAN_MARGIN
-            spp = min(spp, max(1, math.ceil((needed - self.spp) / PARTS)))
+            needed = taken * (self.error / goal.target_error) ** 2 * PLAN_MARGIN
+            spp = min(spp, max(1, math.ceil((needed - taken) / (PARTS * share))))
         if goal.time_budget is not None:
-            share = 1.0 if self._rates is None else adaptive.mean(self._rates)
-            spp = min(spp, int(self._fits_in_budget() / share))
+            fits = self._fits_in_budget()
+            if self._rates is not None:  # rounding up adds less than a sample per pixel
+                fits = max(0, fits - 1)
+            spp = min(spp, int(fits / share))
         return max(1, spp)
 
 

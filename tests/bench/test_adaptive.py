@@ -42,15 +42,40 @@ def test_time_to_reads_the_log_log_line(bench):
     assert bench.time_to(records[1:], 1e-2) == 4.0  # below it from the first wave on
 
 
-def test_a_tiny_frame_each_way(bench):
+@pytest.fixture(scope="module")
+def tiny_frames(bench):
+    """One tiny frame of the Cornell box each way against a made-up reference: per mode, its
+    records and its snapshot at the target."""
     state = load_scene(REPO_SCENES / "cornell-box" / "scene.json")
     scene = compile_scene(state)
     camera = fmt.override(scene.camera, width=16, height=12)
     settings = fmt.override(scene.render, spp=64)
     reference = type("Ref", (), {})()
     reference.mean = render_image(scene, camera, settings)[0].astype(np.float64)
+    frames = {}
     for mode in bench.MODES:
-        records = bench.frame_run(scene, camera, settings, reference, 0.0, mode, 64, 1)
+        snapshot = {}
+        records = bench.frame_run(scene, camera, settings, reference, 0.0, mode, 64, 1, snapshot)
+        frames[mode] = records, snapshot
+    return frames
+
+
+def test_a_tiny_frame_each_way(bench, tiny_frames):
+    for records, snapshot in tiny_frames.values():
         assert records and records[0]["spp"] == PARTS
         assert all(r["mean_spp"] <= r["spp"] for r in records)
         assert [r["seconds"] for r in records] == sorted(r["seconds"] for r in records)
+        # The samples-per-pixel map adds up to the samples the parts were rendered with.
+        hit = bench.at_target(records)
+        spp = snapshot["pixel_spp"]
+        assert spp.sum() == hit["samples"] and spp.mean() == pytest.approx(hit["mean_spp"])
+    on = tiny_frames["on"][1]["pixel_spp"]
+    assert on.min() < on.max()  # the tiny frame did sample adaptively
+
+
+def test_the_spp_map_figure_is_written(tiny_frames, tmp_path):
+    from adaptive_figures import spp_map_figure
+
+    on, off = tiny_frames["on"][1], tiny_frames["off"][1]
+    path = spp_map_figure("cornell-box", 1e-2, on, off, tmp_path / "spp.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

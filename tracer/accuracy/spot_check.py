@@ -111,7 +111,7 @@ class SpotCheckLedger:
     """A progressive render's spot checks: per pixel ever checked, the sums of its parts.
 
     Each wave, :meth:`plan` picks the pixels to check (most uncertain first), each to
-    ``SPOT_CHECK_FACTOR`` times the render's samples, topping up what a pixel already has,
+    ``SPOT_CHECK_FACTOR`` times its pixel's samples, topping up what a pixel already has,
     while the work of all checks so far stays within ``SPOT_CHECK_SHARE`` of the render's
     (and at most ``SPOT_CHECKS`` pixels); a pixel checked before whose top-up does not fit
     keeps its older check. Work is the kernels' work count (deterministic,
@@ -137,16 +137,21 @@ class SpotCheckLedger:
     rate: float = 1.0
     """The render's mean work per pixel sample at the last plan (1 without its work)."""
 
-    def plan(self, parts: np.ndarray, spp: int, work: float | None = None) -> SpotCheck | None:
-        """The checks to render for a render of ``spp`` samples per pixel whose parts are
-        ``parts`` ((PARTS, H, W, 3)) and whose work so far is ``work`` (None: count samples),
-        or None when none is needed or affordable."""
-        need = max(1, SPOT_CHECK_FACTOR * spp // PARTS)
-        self.rate = work / (spp * self.pixels) if work else 1.0
-        budget = SPOT_CHECK_SHARE * spp * self.pixels * self.rate - self.spent
-        chosen, starts = [], []
+    def plan(
+        self, parts: np.ndarray, spp: int | np.ndarray, work: float | None = None
+    ) -> SpotCheck | None:
+        """The checks to render for a render of ``spp`` samples per pixel (one number, or each
+        pixel's (H, W) after adaptive sampling: a check takes ``SPOT_CHECK_FACTOR`` times its
+        own pixel's) whose parts are ``parts`` ((PARTS, H, W, 3)) and whose work so far is
+        ``work`` (None: count samples), or None when none is needed or affordable."""
+        spp = np.broadcast_to(np.asarray(spp, np.int64), np.shape(parts)[1:3])
+        samples = int(spp.sum())
+        self.rate = work / samples if work else 1.0
+        budget = SPOT_CHECK_SHARE * samples * self.rate - self.spent
+        chosen, starts, needs = [], [], []
         for y, x in pixels_to_check(parts, CANDIDATES):
             key = (int(y), int(x))
+            need = max(1, SPOT_CHECK_FACTOR * int(spp[key]) // PARTS)
             have = self.counts.get(key, 0)
             cost = PARTS * max(0, need - have) * self._rate(key)
             if cost <= budget:  # top it up to ``need``
@@ -157,16 +162,17 @@ class SpotCheckLedger:
             else:
                 continue
             chosen.append(key)
+            needs.append(need)
             if len(chosen) == SPOT_CHECKS:
                 break
         self.planned = chosen
-        todo = [i for i, start in enumerate(starts) if start < need]
+        todo = [i for i, start in enumerate(starts) if start < needs[i]]
         if not todo:
             return None
         return SpotCheck(
             np.array([chosen[i] for i in todo], dtype=np.int64).reshape(-1, 2),
             np.array([starts[i] for i in todo], dtype=np.int64),
-            np.array([need - starts[i] for i in todo], dtype=np.int64),
+            np.array([needs[i] - starts[i] for i in todo], dtype=np.int64),
         )
 
     def _rate(self, key: tuple[int, int]) -> float:
