@@ -270,8 +270,10 @@ class JobRun:
         elif p is not None and p.waves and p.waves[-1].error and self.done == self.done_at_start:
             target = float(self.request["target_error"])
             wave = p.waves[-1]  # the estimate and the samples it was made at
-            needed = min(self.max_spp, wave.spp * (wave.error / target) ** 2)
-            eta = p.elapsed / p.spp * max(0.0, needed - p.spp) * (total - self.done)
+            # Mean samples per pixel: what max_spp bounds (the range exceeds it when adaptive).
+            needed = min(self.max_spp, wave.mean_spp * (wave.error / target) ** 2)
+            taken = p.mean_spp
+            eta = p.elapsed / taken * max(0.0, needed - taken) * (total - self.done)
         elif self.done > self.done_at_start:
             eta = elapsed / (self.done - self.done_at_start) * (total - self.done)
         return {

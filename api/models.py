@@ -225,8 +225,9 @@ class JobCreate(Strict):
     denoise_prefilter: Literal[DENOISE_PREFILTER] | None = Field(
         default=None,
         description="prefilter the denoiser's albedo and normal guides: auto where they are "
-        "noisy (both with a lens aperture or a normal map, the albedo with textures only), on "
-        "(both), off or albedo (the scene's render.denoise_prefilter by default)",
+        "noisy (both with a lens aperture, a normal map or a blended surface, the albedo with "
+        "textures only), on (both), off or albedo (the scene's render.denoise_prefilter by "
+        "default)",
     )
     adaptive: Literal[ADAPTIVE] | bool | None = Field(
         default=None,

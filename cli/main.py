@@ -279,8 +279,8 @@ def add_layer_options(parser: argparse.ArgumentParser) -> None:
         "--denoise-prefilter",
         choices=DENOISE_PREFILTER,
         help="prefilter the denoiser's albedo and normal guides: auto (the default) where they "
-        "are noisy (both with a lens aperture or a normal map, the albedo with textures only), "
-        "on (both), off or albedo (docs/denoising.md)",
+        "are noisy (both with a lens aperture, a normal map or a blended surface, the albedo "
+        "with textures only), on (both), off or albedo (docs/denoising.md)",
     )
     parser.add_argument(
         "--layer",

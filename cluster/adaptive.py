@@ -82,7 +82,7 @@ def next_rates(
     mode: str, parts: np.ndarray, part_counts: np.ndarray, part_spp: int
 ) -> np.ndarray | None:
     """The rates of the next wave in ``mode`` (``MODES``) of a frame whose ``parts`` (PARTS,
-    H, W, 3) have ``part_counts`` (H, W) samples each, at least ``part_spp`` everywhere; None
+    H, W, 3) have ``part_counts`` (H, W) samples each, at most ``part_spp`` (the sample range); None
     for a uniform wave."""
     if mode not in MODES:
         raise ValueError(f"adaptive must be one of {', '.join(MODES)}, got {mode!r}")

@@ -166,7 +166,7 @@ class ProgressiveFrame:
     """Per part, the sum of its samples' images, float64 (PARTS, H, W, 3)."""
     part_spp: int = 0
     """Samples per pixel in each part after the last complete wave (the sample range; with
-    adaptive sampling the most a pixel has)."""
+    adaptive sampling at least the most a pixel has)."""
     part_counts: np.ndarray = field(init=False, repr=False)
     """Samples of each pixel in each part after the last complete wave, int64 (H, W)."""
     work: float | None = 0.0

@@ -155,6 +155,47 @@ def test_albedo_and_normal_follow_a_mirror_to_the_surface_it_shows():
     assert np.allclose(position[:, 0] + position[:, 2], -5.0, atol=1e-4)
 
 
+def test_the_back_of_a_one_sided_card_is_black_but_has_its_aovs():
+    """A one-sided card seen from behind sends no light, yet its AOVs are its own: its albedo,
+    alpha 1 and the normal facing the camera (the vertex shader records before it gives up)."""
+    colour = [0.2, 0.5, 0.8]
+    data = tiny_scene()
+    data["camera"].update(position=[0.0, 0.0, 0.0], look_at=[0.0, 0.0, -1.0], vfov_deg=20.0)
+    data["camera"].update(width=8, height=6)
+    data["materials"]["card"] = {"reflectance": colour, "two_sided": False}
+    data["objects"] = [
+        {
+            "name": "card",
+            "shape": {"type": "rectangle", "size": [20, 20]},
+            "material": "card",
+            "transform": {"translate": [0, 0, -5], "rotate": [0, 180, 0]},
+        },
+        {
+            "name": "lamp",
+            "shape": {"type": "rectangle", "size": [1, 1]},
+            "material": "lamp",
+            "transform": {"translate": [0, 5, -8], "rotate": [0, 180, 0]},
+        },
+    ]
+    scene = compile_dict(data)
+    rendered = render(scene, scene.camera, spp=2, aovs=True)
+    assert (rendered.aov[:, aov.ALPHA] == 1.0).all()
+    assert not rendered.rgb.any()
+    assert np.allclose(rendered.aov[:, aov.ALBEDO : aov.ALBEDO + 3], colour, atol=1e-6)
+    assert np.allclose(rendered.aov[:, aov.NORMAL : aov.NORMAL + 3], [0.0, 0.0, 1.0], atol=1e-5)
+
+
+def test_a_path_that_ends_at_its_first_vertex_still_records_it():
+    """With ``max_depth`` 1 the first vertex scatters nothing, and its albedo and normal are
+    bit for bit those of a longer path's first vertex (every surface here is diffuse)."""
+    scene = compile_dict(tiny_scene())
+    camera = scene.camera
+    short = render(scene, camera, max_depth=1, aovs=True).aov
+    long = render(scene, camera, max_depth=4, aovs=True).aov
+    assert short[:, aov.ALPHA].any()
+    assert np.array_equal(short[:, : aov.DEPTH], long[:, : aov.DEPTH])
+
+
 def test_aovs_refused_where_no_paths_give_them():
     """AOVs with a first-hit integrator, or with the stream kernel, are refused with a reason."""
     with pytest.raises(ValueError, match="ao integrator gives no AOVs"):

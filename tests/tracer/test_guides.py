@@ -50,6 +50,14 @@ def test_a_normal_map_makes_both_guides_noisy():
     assert mapped and noisy_guides(mapped, state.camera) == ("albedo", "normal")
 
 
+def test_a_blended_surface_makes_both_guides_noisy_and_a_mask_does_not():
+    state = scene_state("cornell-box")
+    white = state.materials["white"]
+    for mode, noisy in (("blend", ("albedo", "normal")), ("mask", ())):
+        cut = white.model_copy(update={"alpha": fmt.Alpha(mode=mode, value=0.5)})
+        assert noisy_guides([cut], state.camera) == noisy
+
+
 @pytest.mark.parametrize(
     ("name", "lens", "resolved"),
     [("cornell-box", False, "off"), ("textured", False, "albedo"), ("textured", True, "on")],

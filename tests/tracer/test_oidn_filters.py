@@ -5,7 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from tracer.post.oidn_filters import FilterCache
+from tracer.post.oidn_filters import MAX_PIXELS, FilterCache
 
 
 class FakeFilter:
@@ -89,6 +89,20 @@ def test_the_least_recently_used_filter_is_released_first():
     first, second, _ = created(log)
     assert ("release", second) in log and ("release", first) not in log
     assert len(cache) == 2
+
+
+def test_the_kept_filters_cover_at_most_max_pixels():
+    """Filters of large images push out older ones, and one beyond the budget alone is released
+    after its call: the cache never pins more scratch memory than ``MAX_PIXELS`` asks for."""
+    cache, log, _ = fake_cache(8)
+    side = int((MAX_PIXELS / 2) ** 0.5)  # two of these fit, a third does not
+    for name in ("albedo", "normal", "color"):
+        cache.run({name: image(side, side), "output": image(side, side)}, {"quality": 4})
+    albedo, normal, color = created(log)
+    assert ("release", albedo) in log and len(cache) == 2
+    huge = int(MAX_PIXELS**0.5) + 1
+    cache.run({"color": image(huge, huge), "output": image(huge, huge)}, {"quality": 4})
+    assert len(cache) == 0 and all(("release", f) in log for f in (normal, color))
 
 
 def test_a_filter_that_failed_is_released_and_not_kept():

@@ -58,49 +58,15 @@ class MitsubaExport:
         return tuple(d for d in self.deviations if d.kind == "model")
 
 
+_OPAQUE_FIELDS = {"type", "reflectance", "emission", "two_sided", "texture", "normal_map", "alpha"}
+"""The fields every opaque material has (``tracer.scene.format_materials._Opaque``)."""
+
 KNOWN_FIELDS = {
-    fmt.DiffuseMaterial: {
-        "type",
-        "reflectance",
-        "emission",
-        "two_sided",
-        "texture",
-        "normal_map",
-        "alpha",
-    },
-    fmt.MirrorMaterial: {
-        "type",
-        "reflectance",
-        "emission",
-        "two_sided",
-        "texture",
-        "normal_map",
-        "alpha",
-    },
+    fmt.DiffuseMaterial: _OPAQUE_FIELDS,
+    fmt.MirrorMaterial: _OPAQUE_FIELDS,
     fmt.DielectricMaterial: {"type", "ior", "absorption"},
-    fmt.ConductorMaterial: {
-        "type",
-        "reflectance",
-        "eta",
-        "k",
-        "roughness",
-        "emission",
-        "two_sided",
-        "texture",
-        "normal_map",
-        "alpha",
-    },
-    fmt.PlasticMaterial: {
-        "type",
-        "reflectance",
-        "ior",
-        "roughness",
-        "emission",
-        "two_sided",
-        "texture",
-        "normal_map",
-        "alpha",
-    },
+    fmt.ConductorMaterial: _OPAQUE_FIELDS | {"eta", "k", "roughness"},
+    fmt.PlasticMaterial: _OPAQUE_FIELDS | {"ior", "roughness"},
     fmt.Texture: {"file", "wrap", "scale"},
     fmt.Alpha: {"mode", "cutoff", "value", "texture"},
     fmt.NormalMap: {"file", "wrap", "scale", "strength"},

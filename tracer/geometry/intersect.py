@@ -19,6 +19,7 @@ reference-count traffic on every ray.
 """
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from llvmlite import ir
@@ -335,7 +336,7 @@ def enter_any(bounds, child, node, ox, oy, oz, ix, iy, iz, nx, ny, nz, t_max, st
     return entry, sp
 
 
-def closest_traversal(alpha: bool):
+def closest_traversal(alpha: bool) -> Callable[..., tuple]:
     """:func:`blas_closest`; with ``alpha`` its twin that skips a candidate hit the global
     ``hidden`` rejects (``tracer.shading.alpha``, bound by ``tracer.kernel.jit.with_globals``).
     ``alpha`` is a closure constant: without it the test is removed before type inference."""
@@ -439,7 +440,7 @@ def closest_traversal(alpha: bool):
 blas_closest = jit_inline(closest_traversal(False))
 
 
-def any_hit_traversal(alpha: bool):
+def any_hit_traversal(alpha: bool) -> Callable[..., tuple]:
     """:func:`blas_occluded`; with ``alpha`` its twin that passes through a hit the global
     ``hidden`` rejects (as :func:`closest_traversal`)."""
 

@@ -1,7 +1,7 @@
 """Unidirectional path tracing with next-event estimation, MIS and Russian roulette, and the
 Whitted variant (direct light at diffuse and glossy surfaces, recursion through delta lobes).
 
-The kernel (``path_kernel``, built eight ways) renders pixel blocks of a pixel run [p0, p1) of
+The kernel (``path_kernel``, built four ways) renders pixel blocks of a pixel run [p0, p1) of
 a frame: pixels in row-major order (index ``y * width + x``), of which lines [y0, y1) are the
 run [y0 * width, y1 * width). Every random number is drawn from the counter-based RNG keyed by
 (seed, frame, pixel, sample index) at a fixed dimension per path vertex, so a pixel's value

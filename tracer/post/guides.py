@@ -5,14 +5,12 @@ The albedo and normal AOVs (``tracer.integrators.aov``) are means over a pixel's
 the first non-delta surface a pixel's samples meet varies only across the pixel's footprint, they
 are as clean as the pixel filter makes them, and prefiltering them costs more than the beauty's
 own denoising and leaves as much error or more; a lens aperture (depth of field) and image
-textures make them noisy, and the prefilters then lower the error (``docs/denoising.md``,
-Guides and prefiltering). Textures alone vary the albedo, not the normal: prefiltering the
-albedo only, and counting the normal clean, saves one of the two prefilters for at most 3% more
-error than prefiltering both (measured on the textured scene). A lens or a normal map varies the
-normal too, and skipping its prefilter there cost up to 38% more error at 1 spp, so both are
-prefiltered. Glass varies them too (each sample reflects or refracts), but on the glass scene
-measured the prefilters lowered the error by at most 4% at 4 and 16 spp, for four times the
-time, so glass alone does not ask for them."""
+textures make them noisy, and the prefilters then lower the error. Textures alone vary the
+albedo, not the normal, so the albedo alone is prefiltered there; a lens, a normal map or a
+blended surface varies the normal too, so both are. Glass varies them too (each sample
+reflects or refracts), but the prefilters gained too little there for their time, so glass
+alone does not ask for them. The measurements behind each rule are in ``docs/denoising.md``,
+Guides and prefiltering."""
 
 from collections.abc import Iterable
 
@@ -23,12 +21,19 @@ def _textured(materials: Iterable[fmt.Material], field: str) -> bool:
     return any(getattr(material, field, None) is not None for material in materials)
 
 
+def _blended(materials: Iterable[fmt.Material]) -> bool:
+    return any(
+        getattr(getattr(material, "alpha", None), "mode", None) == "blend" for material in materials
+    )
+
+
 def noisy_guides(materials: Iterable[fmt.Material], camera: fmt.Camera) -> tuple[str, ...]:
     """The guides of ``camera``'s view of a scene with ``materials`` that carry noise beyond the
-    pixel filter's: both with a lens aperture or a normal map, the albedo alone with textures
-    only, else none."""
+    pixel filter's: both with a lens aperture, a normal map or a blended (stochastic alpha)
+    surface, which each sample meets or passes, the albedo alone with textures only, else
+    none."""
     materials = list(materials)
-    if camera.aperture_radius > 0.0 or _textured(materials, "normal_map"):
+    if camera.aperture_radius > 0.0 or _textured(materials, "normal_map") or _blended(materials):
         return ("albedo", "normal")
     return ("albedo",) if _textured(materials, "texture") else ()
 

@@ -2,10 +2,13 @@
 
 OIDN's documentation asks to reuse a filter for every image of the same size, format and
 features rather than create one per image: a new filter's first execution sets up its network
-(measured here: 10-15% of a 640x480 execution). :class:`FilterCache` keeps the most recently
-used filters of one device by what they were set up for (image names, size, options); a call
-sets its images on the cached filter, which OIDN commits without rebuilding the network, and
-executes it. The cache is not locked: its device's lock (``tracer.post.denoise``) guards it.
+(``docs/denoising.md``). :class:`FilterCache` keeps the most recently used filters of one device
+by what they were set up for (image names, size, options); a call sets its images on the cached
+filter, which OIDN commits without rebuilding the network, and executes it. A kept filter holds
+OIDN's scratch memory for its image size, so the cache keeps filters for a bounded number of
+pixels in all. A kept filter still points at the last call's arrays, which may be freed: the
+key names every image, so each is set again before the next commit. The cache is not locked:
+its device's lock (``tracer.post.denoise``) guards it.
 """
 
 from __future__ import annotations
@@ -18,6 +21,10 @@ import numpy as np
 MAX_FILTERS = 8
 """Filters kept per device: the three a prefiltered call uses (albedo, normal, beauty) for two
 frame sizes and qualities at once (a job's frame and a live session's), with room to spare."""
+
+MAX_PIXELS = 3 * 2048 * 2048
+"""Pixels of the images the kept filters were set up for, in all: the three filters of a
+prefiltered call of up to about 4 megapixels. A larger call's filters are released after it."""
 
 FilterKey = tuple[tuple[str, ...], tuple[int, int], tuple[tuple[str, object], ...]]
 """What a filter was set up for: its images' names, the images' (height, width), its options."""
@@ -35,9 +42,15 @@ class FilterCache:
     def __len__(self) -> int:
         return len(self._filters)
 
+    def _pixels(self) -> int:
+        return sum(height * width for _, (height, width), _ in self._filters)
+
     def _filter(self, key: FilterKey, options: dict) -> object:
         """The cached filter for ``key``, or a new one with ``options`` set."""
         filter_ = self._filters.pop(key, None)
+        height, width = key[1]
+        while self._filters and self._pixels() + height * width > MAX_PIXELS:
+            self._filters.popitem(last=False)[1].release()
         if filter_ is None:
             filter_ = self._pyoidn.Filter(self._device, self._pyoidn.OIDN_FILTER_TYPE_RT)
             for name, value in options.items():
@@ -64,7 +77,7 @@ class FilterCache:
         if error is None:
             filter_.execute()
             error = self._device.get_error()
-        if error is not None:
+        if error is not None or self._pixels() > MAX_PIXELS:
             del self._filters[key]
             filter_.release()
         return error

@@ -71,13 +71,20 @@ def check_textures(state: SceneState) -> None:
     every mesh node whose material has one has UVs."""
     textured = {}
     for name, material in state.materials.items():
+        alpha = alpha_texture(material)
         named = (("texture", material_texture(material)),
                  ("normal map", getattr(material, "normal_map", None)),
-                 ("alpha texture", alpha_texture(material)))  # fmt: skip
+                 ("alpha texture", alpha))  # fmt: skip
         for label, texture in named:
             if texture is None:
                 continue
             if texture.file not in state.textures:
+                if texture is alpha:
+                    raise SceneError(
+                        f"material {name!r}: the alpha channel of its alpha texture "
+                        f"{material.alpha.texture.file!r} is not among the scene's images (an "
+                        "image used as an alpha texture must be loaded with the scene)"
+                    )
                 raise SceneError(
                     f"material {name!r}: its {label} {texture.file!r} is not one of the "
                     "scene's images"

@@ -393,7 +393,8 @@ class RenderSettings(Strict):
         default="auto",
         description="Prefilter the denoiser's albedo and normal guides before the beauty is "
         "denoised (OIDN's recipe for noisy guides): auto where they are noisy (both with a lens "
-        "aperture or a normal map, the albedo alone with textures only), on (both), off, or "
+        "aperture, a normal map or a blended surface, the albedo alone with textures only), on "
+        "(both), off, or "
         "albedo (the albedo alone, the normal counted clean) (docs/denoising.md)",
     )
     adaptive: Literal[ADAPTIVE] = Field(

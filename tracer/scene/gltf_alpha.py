@@ -3,6 +3,8 @@
 ``Alpha`` (docs/materials.md, *Alpha*). ``OPAQUE`` (the default) ignores alpha, as the spec
 says."""
 
+from trimesh.visual.material import Material
+
 from tracer.errors import SceneError
 from tracer.scene import format as fmt
 from tracer.scene.gltf_nodes import finite, numbers
@@ -11,7 +13,7 @@ MODES = {"MASK": "mask", "BLEND": "blend"}
 DEFAULT_CUTOFF = 0.5
 
 
-def alpha_mode(spec: dict, material, where: str) -> str:
+def alpha_mode(spec: dict, material: Material | None, where: str) -> str:
     """``OPAQUE``, ``MASK`` or ``BLEND``: from the material's JSON ``spec`` when found, else as
     trimesh kept it; anything else is a ``SceneError`` at ``where``."""
     mode = spec["alphaMode"] if "alphaMode" in spec else getattr(material, "alphaMode", None)
@@ -22,7 +24,7 @@ def alpha_mode(spec: dict, material, where: str) -> str:
 
 
 def material_alpha(
-    spec: dict, material, texture: fmt.Texture | None, where: str
+    spec: dict, material: Material | None, texture: fmt.Texture | None, where: str
 ) -> fmt.Alpha | None:
     """The ``Alpha`` of a glTF material (None for ``OPAQUE``). ``spec`` is its JSON ({} when it
     cannot be matched: trimesh's values are used), ``material`` trimesh's, ``texture`` its base
