@@ -1,8 +1,8 @@
 """A scene that uses every effect and makes last-bit differences of matrix products show: odd
 rotations, non-uniform and mirroring scales, a shearing matrix, static, rigid and deformable
 nodes, a parent chain, a texture and a normal map, smooth spheres (shading normals, rigid and
-deformable), an environment map, spot, point and sun lights, a thin lens and a camera looking
-along no axis."""
+deformable), cards cut out by a mask and blended (alpha), an environment map, spot, point and
+sun lights, a thin lens and a camera looking along no axis."""
 
 from pathlib import Path
 
@@ -12,13 +12,15 @@ from tests.helpers import write_json
 
 
 def harsh_scene(directory: Path) -> Path:
-    """Write the harsh scene (a texture and an environment map with it) to ``directory``."""
+    """Write the harsh scene (its textures and an environment map with it) to ``directory``."""
     from PIL import Image
 
     directory.mkdir(parents=True, exist_ok=True)
     texels = (np.indices((8, 8)).sum(axis=0) % 2 * 170 + 40).astype(np.uint8)
     rgb = np.stack([texels, np.rot90(texels), np.full_like(texels, 90)], axis=-1)
     Image.fromarray(rgb, "RGB").save(directory / "checker.png")
+    lace = np.dstack([rgb, (np.indices((8, 8)).prod(axis=0) * 37 % 256).astype(np.uint8)])
+    Image.fromarray(lace, "RGBA").save(directory / "lace.png")
     rows, cols = np.mgrid[0:32, 0:64].astype(np.float32)
     sky = np.stack([0.2 + rows / 40.0, 0.3 + cols / 100.0, 0.5 + (rows * cols) / 4000.0], -1)
     sky[5:8, 40:44] = [60.0, 50.0, 35.0]  # a small sun painted into the map
@@ -76,6 +78,11 @@ def harsh_scene(directory: Path) -> Path:
             "glass": {"type": "dielectric", "ior": 1.53, "absorption": [0.3, 0.7, 0.1]},
             "mirror": {"type": "mirror", "reflectance": [0.95, 0.93, 0.9]},
             "clay": {"reflectance": [0.6, 0.45, 0.35]},
+            "lace": {
+                "reflectance": [0.7, 0.3, 0.5],
+                "alpha": {"mode": "mask", "cutoff": 0.43, "texture": {"file": "lace.png"}},
+            },
+            "veil": {"reflectance": [0.3, 0.6, 0.4], "alpha": {"mode": "blend", "value": 0.57}},
             "lamp": {"reflectance": [0, 0, 0], "emission": [7.3, 6.1, 4.7], "two_sided": False},
         },
         "objects": [
@@ -148,6 +155,19 @@ def harsh_scene(directory: Path) -> Path:
                     "rotate": [0.0, -61.3, 0.0],
                     "scale": [-0.9, 1.1, 0.7],
                 },
+            },
+            {
+                "name": "lace-card",
+                "shape": {"type": "rectangle", "size": [1.1, 0.8]},
+                "material": "lace",
+                "transform": {"translate": [1.63, 0.71, 0.53], "rotate": [-7.1, 131.3, 3.7]},
+            },
+            {
+                "name": "veil-card",
+                "shape": {"type": "rectangle", "size": [0.9, 1.2]},
+                "material": "veil",
+                "kind": "rigid",
+                "transform": {"translate": [-0.47, 0.83, 1.07], "rotate": [4.3, 157.9, -2.9]},
             },
             {
                 "name": "lamp",

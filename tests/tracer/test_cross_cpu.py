@@ -315,10 +315,12 @@ def reference(scenes) -> Run:
 
 def test_scenes_use_every_effect(scenes):
     """The harsh scene runs every effect of the path tracer; outdoor all but textures, shading
-    normals, normal maps and the terminator falloff and bending that come with them."""
+    normals, normal maps and the terminator falloff and bending that come with them, and the
+    alpha test."""
     from tracer.compiled.scene import compile_scene
     from tracer.integrators.flags import (
         ALL,
+        ALPHA_TEST,
         NORMAL_BENDING,
         NORMAL_MAPS,
         SHADING_NORMALS,
@@ -334,7 +336,7 @@ def test_scenes_use_every_effect(scenes):
         plans[name] = effect_plan(scene, scene.render).flags
     assert plans["harsh"] == ALL
     shading = SHADING_NORMALS | NORMAL_MAPS | SHADOW_TERMINATOR | NORMAL_BENDING
-    assert plans["outdoor"] == ALL & ~(TEXTURES | shading)
+    assert plans["outdoor"] == ALL & ~(TEXTURES | shading | ALPHA_TEST)
 
 
 def test_reference_is_a_real_image(reference):
