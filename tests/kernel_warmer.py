@@ -21,11 +21,11 @@ from tracer.warm import Build, builds
 
 def warm_order() -> list[Build]:
     """The builds to warm, in the order they are compiled."""
-    paths = builds(SCENES, kernels=("single", "stream"))
-    surface = builds(SCENES, integrators=("ao",))
+    found = builds(SCENES, (("path", "single"), ("path", "stream"), ("ao", "auto")))
     lean = kernel_for(0)  # the first tests' own
-    single = [b for b in paths if b.settings.kernel == "single" and b.kernel is not lean]
-    stream = [b for b in paths if b.settings.kernel == "stream"]
+    single = [b for b in found if b.settings.kernel == "single" and b.kernel is not lean]
+    stream = [b for b in found if b.settings.kernel == "stream"]
+    surface = [b for b in found if b.settings.integrator == "ao"]
     return single + stream + surface
 
 

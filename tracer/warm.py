@@ -34,21 +34,18 @@ class Build:
         return time.perf_counter() - start
 
 
-def builds(
-    scenes: Path, kernels: Iterable[str] = ("auto",), integrators: Iterable[str] = ("path",)
-) -> list[Build]:
+def builds(scenes: Path, renders: Iterable[tuple[str, str]] = (("path", "auto"),)) -> list[Build]:
     """Every distinct kernel the sample scenes under ``scenes`` need, rendered by each of
-    ``integrators`` with each of ``kernels`` (``render.kernel`` values), in scene order."""
+    ``renders`` (an integrator and a ``render.kernel`` value), in scene order; each scene is
+    loaded and compiled once."""
+    renders = tuple(renders)
     found: dict[int, Build] = {}
     for path in sorted(scenes.glob("*/scene.json")):
         scene = compile_scene(load_scene(path))
-        for integrator in integrators:
-            for kernel_name in kernels:
-                settings = fmt.override(
-                    scene.render, spp=1, integrator=integrator, kernel=kernel_name
-                )
-                plan = effect_plan(scene, settings)
-                kernel = chosen_kernel(settings, plan.flags)
-                label = f"{path.parent.name} ({integrator}, {kernel_name})"
-                found.setdefault(id(kernel), Build(kernel, label, scene, settings, plan))
+        for integrator, kernel_name in renders:
+            settings = fmt.override(scene.render, spp=1, integrator=integrator, kernel=kernel_name)
+            plan = effect_plan(scene, settings)
+            kernel = chosen_kernel(settings, plan.flags)
+            label = f"{path.parent.name} ({integrator}, {kernel_name})"
+            found.setdefault(id(kernel), Build(kernel, label, scene, settings, plan))
     return list(found.values())
