@@ -10,7 +10,7 @@ import pytest
 
 from tests.helpers import SCENES
 from tests.stats import pass_statistics, welch_pixel_test
-from tracer.compiled.light_tree import build_light_tree, light_tree_of
+from tracer.compiled.light_tree import EMPTY, build_light_tree, light_tree_of
 from tracer.compiled.scene import compile_scene
 from tracer.integrators import flags
 from tracer.integrators.effects import TREE_MIN_TRIANGLES, effect_plan
@@ -49,24 +49,84 @@ def _pmfs(tree, p, n) -> np.ndarray:
 
 
 def _dead_end_mass(tree, p, n) -> float:
-    """The probability that the walk from the root meets a node whose children both have zero
+    """The probability that the walk from the root meets a node whose slots all have zero
     importance (the sampler then picks nothing)."""
     nodes, child = tree.light_tree_nodes, tree.light_tree_child
-    if child[0] < 0:
-        return 0.0 if lt.importance(nodes, 0, p, n) > 0.0 else 1.0
     lost = 0.0
     stack = [(0, 1.0)]
     while stack:
         i, reach = stack.pop()
-        if child[i] < 0:
-            continue
-        c0 = lt.importance(nodes, i + 1, p, n)
-        c1 = lt.importance(nodes, int(child[i]), p, n)
-        if not c0 + c1 > 0.0:
+        c = lt.importances(nodes, i, p, n)
+        total = sum(c)
+        if not total > 0.0:
             lost += reach
             continue
-        stack += [(i + 1, reach * c0 / (c0 + c1)), (int(child[i]), reach * c1 / (c0 + c1))]
+        stack += [(int(child[i, k]), reach * c[k] / total) for k in range(lt.WIDTH)
+                  if c[k] > 0.0 and child[i, k] >= 0]  # fmt: skip
     return lost
+
+
+def _numpy_importances(nodes, p, n) -> np.ndarray:
+    """``lt.importances`` of every node and slot, transcribed to numpy (the same IEEE
+    operations in the same order): (N, WIDTH)."""
+    w = lt.WIDTH
+
+    def field(f):
+        return nodes[:, f * w : (f + 1) * w]
+
+    def positive_part(x):
+        return np.where(x > 0.0, x, 0.0)
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dx, dy, dz = (p[a] - field(lt.CENTRE + a) for a in range(3))
+        d2 = (dx * dx + dy * dy) + dz * dz
+        r2, phi = field(lt.RADIUS2), field(lt.PHI)
+        inv = 1.0 / np.sqrt(d2)
+        wx, wy, wz = dx * inv, dy * inv, dz * inv
+        sin2_b = r2 / d2
+        cos_b, sin_b = np.sqrt(1.0 - sin2_b), np.sqrt(sin2_b)
+        cos_w = (field(lt.AXIS) * wx + field(lt.AXIS + 1) * wy) + field(lt.AXIS + 2) * wz
+        cos_w = np.where(field(lt.TWO_SIDED) != 0.0, np.abs(cos_w), cos_w)
+        cos_o, sin_o = field(lt.COS_O), field(lt.SIN_O)
+        sin_w = np.sqrt(positive_part(1.0 - cos_w * cos_w))
+        cos_x = cos_w * cos_o + sin_w * sin_o
+        sin_x = sin_w * cos_o - cos_w * sin_o
+        cos_e = np.where((cos_w > cos_o) | (cos_x > cos_b), 1.0, cos_x * cos_b + sin_x * sin_b)
+        cos_a = -((n[0] * wx + n[1] * wy) + n[2] * wz)
+        sin_a = np.sqrt(positive_part(1.0 - cos_a * cos_a))
+        cos_r = np.where(cos_a > cos_b, 1.0, cos_a * cos_b + sin_a * sin_b)
+        outside = np.where((cos_e > 0.0) & (cos_r > 0.0), phi * cos_e * cos_r / d2, 0.0)
+        inside = phi / np.where(r2 > lt.TINY, r2, lt.TINY)
+        return np.where(d2 <= r2, inside, outside)
+
+
+@pytest.mark.parametrize("name", ["hall", "many"])
+def test_vector_importances_are_their_numpy_transcription(name, request):
+    """The four slots' importances, one LLVM vector computation, are the bits of the same
+    operations in numpy, for every node of the tree from fixed points, inside spheres too."""
+    scene = request.getfixturevalue(name)
+    nodes = light_tree_of(scene).light_tree_nodes
+    points = _points(scene, 10, seed=8)
+    points += [(tuple(nodes[i, lt.CENTRE * lt.WIDTH :: lt.WIDTH][:3]), points[0][1])
+               for i in range(0, nodes.shape[0], 97)]  # fmt: skip
+    for p, n in points:
+        expected = _numpy_importances(nodes, p, n)
+        got = np.array([lt.importances(nodes, i, p, n) for i in range(nodes.shape[0])])
+        assert got.tobytes() == expected.tobytes()
+    assert (expected >= 0.0).all()
+
+
+def test_the_wide_tree_holds_every_triangle_once(hall):
+    """Every triangle is one slot's, every node but the root is one slot's, inner nodes have
+    two to four slots, and empty slots weigh nothing."""
+    tree = light_tree_of(hall)
+    child, nodes = tree.light_tree_child, tree.light_tree_nodes
+    leaves = -1 - child[(child < 0) & (child != EMPTY)]
+    assert np.array_equal(np.sort(leaves), np.arange(hall.stats.emissive_triangles))
+    assert np.array_equal(np.sort(child[child >= 0]), np.arange(1, child.shape[0]))
+    assert ((child != EMPTY).sum(axis=1) >= 2).all()
+    phi = nodes[:, lt.PHI * lt.WIDTH : (lt.PHI + 1) * lt.WIDTH]
+    assert (phi[child == EMPTY] == 0.0).all() and (phi[child != EMPTY] > 0.0).all()
 
 
 @pytest.mark.parametrize("name", ["hall", "many"])

@@ -115,10 +115,11 @@ class SceneArrays(NamedTuple):
     sky_cols: np.ndarray
     """float64 (H, W + 1): the map's conditional CDFs over each row's columns."""
     light_tree_nodes: np.ndarray
-    """float64 (N, ``light_tree.NODE``): the light tree over the emissive triangles
-    (``tracer.compiled.light_tree``; empty unless the plan samples lights with it)."""
+    """float64 (N, ``light_tree.NODE * light_tree.WIDTH``): the 4-wide light tree over the
+    emissive triangles (``tracer.compiled.light_tree``; empty unless the plan samples lights
+    with it)."""
     light_tree_child: np.ndarray
-    """int32 (N,): each node's second child, or ``-1 - light`` for a leaf."""
+    """int32 (N, ``light_tree.WIDTH``): each slot's node, or ``-1 - light`` for a triangle."""
     light_tree_bits: np.ndarray
     """uint64 (T,): each emissive triangle's path from the root."""
     light_tree_area: np.ndarray

@@ -5,9 +5,9 @@ boundary of their centroids (12 buckets on each axis) that minimises the surface
 orientation heuristic, power times the orientation measure of the normal cone times the box's
 surface area, over both sides. The cones and costs are computed exactly from the triangles of
 each candidate side, with square roots and arithmetic only (no ``acos``: a polynomial stands in
-for it in the cost), in a fixed order, so every CPU builds the same bits. Nodes are in depth
-first order: a node's first child follows it, ``light_tree_child`` names the second (or, below
-zero, ``-1 - light`` for a leaf).
+for it in the cost), in a fixed order, so every CPU builds the same bits. The binary tree is
+then collapsed into the 4-wide one the kernels walk (``_collapse``): a node's row holds its four
+slots' bounds side by side, so one vector operation weighs all four.
 """
 
 import weakref
@@ -19,23 +19,38 @@ from tracer.compiled.arrays import pick
 from tracer.geometry.intersect import geometric_normal
 from tracer.geometry.transforms import apply_normal, apply_point
 from tracer.kernel.jit import jit
-from tracer.shading.light_tree import AXIS, CENTRE, COS_O, NODE, PHI, RADIUS2, SIN_O, TWO_SIDED
+from tracer.shading.light_tree import (
+    AXIS,
+    CENTRE,
+    COS_O,
+    NODE,
+    PHI,
+    RADIUS2,
+    SIN_O,
+    TWO_SIDED,
+    WIDTH,
+)
 from tracer.shading.lights import TRIANGLE, emission_mean
 
 BUCKETS = 12
 MAX_DEPTH = 63
-"""Bit trails are 64-bit: below this depth a node is split at its median."""
+"""Below this depth a binary node is split at its median, so no leaf lies deeper than 32 levels
+of the 4-wide tree: trails of two bits a level fit 64 bits."""
+EMPTY = np.iinfo(np.int32).min
+"""``light_tree_child`` of an empty slot (its power is 0: never picked)."""
 
 
 class LightTreeArrays(NamedTuple):
     """The ``SceneArrays`` fields of the tree (empty: no tree)."""
 
     light_tree_nodes: np.ndarray
-    """float64 (N, ``light_tree.NODE``)."""
+    """float64 (N, ``light_tree.NODE * light_tree.WIDTH``): each node's slots, field by field
+    (``tracer.shading.light_tree``); node 0 is the root."""
     light_tree_child: np.ndarray
-    """int32 (N,): a node's second child, or ``-1 - light`` for a leaf."""
+    """int32 (N, ``light_tree.WIDTH``): each slot's node, ``-1 - light`` for a triangle, or
+    ``EMPTY``."""
     light_tree_bits: np.ndarray
-    """uint64 (T,): each triangle's path from the root (bit d set: the second child at
+    """uint64 (T,): each triangle's path from the root (bits 2d and 2d + 1: its slot at
     depth d)."""
     light_tree_area: np.ndarray
     """float64 (T,): each triangle's area (render space)."""
@@ -47,7 +62,8 @@ class LightTreeArrays(NamedTuple):
 
 def empty_tree() -> LightTreeArrays:
     """No tree."""
-    return LightTreeArrays(np.zeros((0, NODE)), np.zeros(0, np.int32), np.zeros(0, np.uint64),
+    return LightTreeArrays(np.zeros((0, NODE * WIDTH)), np.zeros((0, WIDTH), np.int32),
+                           np.zeros(0, np.uint64),
                            np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int32))  # fmt: skip
 
 
@@ -74,7 +90,7 @@ def build_light_tree(arrays) -> LightTreeArrays:
         arrays.inst_identity, arrays.light_inst[:count], arrays.light_tri[:count],
         arrays.inst_material, arrays.tri_material, arrays.mat_emission, arrays.mat_two_sided,
     )  # fmt: skip
-    nodes, child, bits = _build(verts, normal, phi, two_sided)
+    nodes, child, bits = _collapse(*_build(verts, normal, phi, two_sided), count)
     keys = (arrays.light_inst[:count].astype(np.int64) << 32) | arrays.light_tri[:count]
     order = np.argsort(keys, kind="stable")
     return LightTreeArrays(nodes, child, bits, area, keys[order], order.astype(np.int32))
@@ -267,11 +283,11 @@ def _push(stack, top, start, end, depth, parent, second):
 
 @jit
 def _build(verts, normal, phi, two_sided):
-    """The nodes, second children and bit trails of the tree over the triangles."""
+    """The binary tree over the triangles: its nodes (one row of ``NODE`` fields each) and
+    their second children (``-1 - light`` for a leaf), in depth first order."""
     t = verts.shape[0]
     nodes = np.zeros((2 * t - 1, NODE))
     child = np.empty(2 * t - 1, np.int32)
-    bits = np.zeros(t, np.uint64)
     idx = np.arange(t)
     tmp = np.empty(t, np.int64)
     bucket = np.zeros(t, np.int64)
@@ -279,9 +295,8 @@ def _build(verts, normal, phi, two_sided):
     for i in range(t):
         for a in range(3):
             centroid[i, a] = (verts[i, a] + verts[i, 3 + a] + verts[i, 6 + a]) / 3.0
-    # A stack of ranges: (start, end, depth, parent, second child?) and the trail.
+    # A stack of ranges: (start, end, depth, parent, second child?).
     stack = np.empty((2 * MAX_DEPTH + 4, 5), np.int64)
-    trails = np.zeros(2 * MAX_DEPTH + 4, np.uint64)
     _push(stack, 0, 0, t, 0, -1, 0)
     top = 1
     next_id = 0
@@ -292,7 +307,6 @@ def _build(verts, normal, phi, two_sided):
         depth = stack[top, 2]
         parent = stack[top, 3]
         second = stack[top, 4]
-        trail = trails[top]
         node = next_id
         next_id += 1
         if second:
@@ -312,13 +326,71 @@ def _build(verts, normal, phi, two_sided):
         nodes[node, TWO_SIDED] = 1.0 if two else 0.0
         if end - start == 1:
             child[node] = -1 - idx[start]
-            bits[idx[start]] = trail
             continue
         mid = _split(verts, normal, phi, two_sided, centroid, idx, tmp, bucket, start, end,
                      depth, hi - lo)  # fmt: skip
         _push(stack, top, mid, end, depth + 1, node, 1)
-        trails[top] = trail | (np.uint64(1) << np.uint64(depth))
         _push(stack, top + 1, start, mid, depth + 1, node, 0)
-        trails[top + 1] = trail
         top += 2
-    return nodes, child, bits
+    return nodes, child
+
+
+@jit
+def _collapse(nodes, child, t):
+    """The 4-wide tree of a binary one: a wide node's slots are a binary node's children,
+    the inner one with the most power replaced by its two children while fewer than four;
+    each triangle's trail, two bits (its slot) a level. Slots left over stay empty."""
+    wide = np.zeros((max(t - 1, 1), NODE * WIDTH))
+    wide_child = np.full((max(t - 1, 1), WIDTH), EMPTY, np.int32)
+    bits = np.zeros(t, np.uint64)
+    stack = np.empty((MAX_DEPTH + 2) * WIDTH, np.int64)  # binary node, wide node, depth
+    trails = np.zeros((MAX_DEPTH + 2) * WIDTH, np.uint64)
+    slots = np.empty(WIDTH, np.int64)
+    stack[0] = 0
+    top = 1
+    count = 1
+    depth = np.zeros((MAX_DEPTH + 2) * WIDTH, np.int64)
+    wide_of = np.zeros((MAX_DEPTH + 2) * WIDTH, np.int64)
+    while top > 0:
+        top -= 1
+        b = stack[top]
+        w = wide_of[top]
+        level = depth[top]
+        trail = trails[top]
+        n = 1
+        slots[0] = b  # a lone leaf at the root
+        if child[b] >= 0:
+            slots[0] = b + 1
+            slots[1] = child[b]
+            n = 2
+        while n < WIDTH:
+            best = -1
+            for k in range(n):
+                inner = child[slots[k]] >= 0
+                if inner and (best < 0 or nodes[slots[k], PHI] > nodes[slots[best], PHI]):
+                    best = k
+            if best < 0:
+                break
+            inner = slots[best]
+            for k in range(n, best + 1, -1):
+                slots[k] = slots[k - 1]
+            slots[best] = inner + 1
+            slots[best + 1] = child[inner]
+            n += 1
+        for k in range(n):
+            s = slots[k]
+            for f in range(NODE):
+                wide[w, f * WIDTH + k] = nodes[s, f]
+            slot_trail = trail | (np.uint64(k) << np.uint64(2 * level))
+            if child[s] < 0:
+                wide_child[w, k] = child[s]
+                bits[-1 - child[s]] = slot_trail
+            else:
+                wide_child[w, k] = count
+                stack[top] = s
+                wide_of[top] = count
+                depth[top] = level + 1
+                trails[top] = slot_trail
+                top += 1
+                count += 1
+    return wide[:count].copy(), wide_child[:count].copy(), bits
