@@ -8,7 +8,7 @@ from itertools import pairwise
 import numpy as np
 import pytest
 
-from tests.helpers import SCENES
+from tests.helpers import SCENES, compile_dict, tiny_scene, write_mesh
 from tests.stats import pass_statistics, welch_pixel_test
 from tracer.compiled.light_tree import EMPTY, build_light_tree, light_tree_of
 from tracer.compiled.scene import compile_scene
@@ -262,3 +262,30 @@ def test_tree_renders_are_the_same_bits_however_split(hall):
         parts = [render_pixels(hall, a, b, camera, split, threads=2) for a, b in pairwise(cuts)]
         assert np.concatenate([p.rgb for p in parts]).tobytes() == whole.rgb.tobytes()
         assert np.array_equal(np.concatenate([p.rays for p in parts]), whole.rays)
+
+
+@pytest.mark.parametrize("count", [1, 2, 3, 4, 5, 9])
+def test_small_trees_are_distributions_the_sampler_follows(count, tmp_path):
+    """Trees of one to nine triangles (a lone triangle is the root's only slot; others leave
+    slots empty): every triangle is one slot's, the PMFs sum to one less the dead ends, and
+    the sampler reports the PMF of what it picks."""
+    rng = np.random.default_rng(count)
+    corners = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.0, 0.0, 0.3]])
+    vertices = np.concatenate([corners + (rng.uniform(-2, 2), 3.0, rng.uniform(-2, 2))
+                               for _ in range(count)])  # fmt: skip
+    faces = np.arange(3 * count).reshape(count, 3)[:, ::-1]  # facing down
+    write_mesh(tmp_path / "lamps.obj", vertices, faces)
+    data = tiny_scene()
+    data["objects"][2]["shape"] = "lamps.obj"
+    del data["objects"][2]["transform"]
+    scene = compile_dict(data, tmp_path)
+    tree = light_tree_of(scene)
+    child = tree.light_tree_child
+    assert np.array_equal(np.sort(-1 - child[(child < 0) & (child != EMPTY)]), np.arange(count))
+    u = (np.arange(2000) + 0.5) / 2000
+    for p, n in _points(scene, 4, seed=count) + [((0.0, 0.0, 0.0), (0.0, 1.0, 0.0))]:
+        pmf = _pmfs(tree, p, n)
+        assert pmf.sum() + _dead_end_mass(tree, p, n) == pytest.approx(1.0, abs=1e-12)
+        for x in u[::7]:
+            e, q = lt.tree_sample(tree.light_tree_nodes, child, p, n, x)
+            assert (e < 0 and q == 0.0) or q == pmf[e]
