@@ -26,7 +26,9 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from tracer.kernel import vector_ir
 from tracer.kernel.jit import jit, jit_inline
+from tracer.kernel.vector_ir import is_c_matrix, row_address
 
 MACHINE_EPSILON = np.finfo(np.float64).eps * 0.5
 
@@ -141,12 +143,7 @@ def _slab4(typingctx, bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max):
     vectorise the four scalar tests itself): each bound row is one <4 x float> load, widened
     to double; the same IEEE operations as :func:`slab` in the same order, so the same results.
     Also maps an entry past ``t_max`` to inf. Needs a C-contiguous float32 ``bounds``."""
-    if not (
-        isinstance(bounds, types.Array)
-        and bounds.dtype == types.float32
-        and bounds.ndim == 2
-        and bounds.layout == "C"
-    ):
+    if not is_c_matrix(bounds, types.float32):
         return None
     f64 = types.float64
     sig = types.UniTuple(f64, 4)(bounds, node, nx, ny, nz, f64, f64, f64, f64, f64, f64, f64)
@@ -156,16 +153,10 @@ def _slab4(typingctx, bounds, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, t_max):
         i64 = ir.IntType(64)
         vf = ir.VectorType(ir.FloatType(), 4)
         vd = ir.VectorType(ir.DoubleType(), 4)
-        array = context.make_array(signature.args[0])(context, builder, value=b)
-        row = builder.mul(
-            context.cast(builder, node_, signature.args[1], types.int64),
-            builder.extract_value(array.strides, 0),
-        )
-        base = builder.gep(builder.bitcast(array.data, ir.IntType(8).as_pointer()), [row])
+        base = row_address(context, builder, signature.args[0], b, node_, signature.args[1])
 
         def splat(x):
-            v = builder.insert_element(ir.Constant(vd, ir.Undefined), x, ir.Constant(i64, 0))
-            return builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), 4), 0))
+            return vector_ir.splat(builder, vd, x)
 
         def load_row(offset_bytes):
             ptr = builder.bitcast(builder.gep(base, [offset_bytes]), vf.as_pointer())

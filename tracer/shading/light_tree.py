@@ -21,7 +21,9 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from tracer.kernel import vector_ir
 from tracer.kernel.jit import jit, jit_inline
+from tracer.kernel.vector_ir import is_c_matrix, row_address
 
 WIDTH = 4
 """Child slots per node."""
@@ -57,12 +59,7 @@ def _importance4(typingctx, nodes, i, px, py, pz, nx, ny, nz):
     from ``n`` to the sphere less its half-angle. IEEE operations only, in a fixed order, so
     every CPU gets the same bits (``tests/tracer/test_light_tree.py`` checks them against a
     numpy transcription). Needs a C-contiguous float64 ``nodes``."""
-    if not (
-        isinstance(nodes, types.Array)
-        and nodes.dtype == types.float64
-        and nodes.ndim == 2
-        and nodes.layout == "C"
-    ):
+    if not is_c_matrix(nodes, types.float64):
         return None
     f64 = types.float64
     sig = types.UniTuple(f64, WIDTH)(nodes, i, f64, f64, f64, f64, f64, f64)
@@ -71,12 +68,7 @@ def _importance4(typingctx, nodes, i, px, py, pz, nx, ny, nz):
         nodes_, i_, px_, py_, pz_, nx_, ny_, nz_ = args
         i64 = ir.IntType(64)
         vd = ir.VectorType(ir.DoubleType(), WIDTH)
-        array = context.make_array(signature.args[0])(context, builder, value=nodes_)
-        row = builder.mul(
-            context.cast(builder, i_, signature.args[1], types.int64),
-            builder.extract_value(array.strides, 0),
-        )
-        base = builder.gep(builder.bitcast(array.data, ir.IntType(8).as_pointer()), [row])
+        base = row_address(context, builder, signature.args[0], nodes_, i_, signature.args[1])
         unary = ir.FunctionType(vd, [vd])
         sqrt = cgutils.get_or_insert_function(builder.module, unary, f"llvm.sqrt.v{WIDTH}f64")
         fabs = cgutils.get_or_insert_function(builder.module, unary, f"llvm.fabs.v{WIDTH}f64")
@@ -88,10 +80,7 @@ def _importance4(typingctx, nodes, i, px, py, pz, nx, ny, nz):
             )
 
         def splat(x):
-            v = builder.insert_element(ir.Constant(vd, ir.Undefined), x, ir.Constant(i64, 0))
-            return builder.shuffle_vector(
-                v, v, ir.Constant(ir.VectorType(ir.IntType(32), WIDTH), 0)
-            )
+            return vector_ir.splat(builder, vd, x)
 
         def const(x):
             return splat(ir.Constant(ir.DoubleType(), x))
