@@ -12,6 +12,10 @@ from types import FunctionType
 
 from numba import njit
 
+from tracer.kernel import inline_copies
+
+inline_copies.install()
+
 jit = njit(cache=True, error_model="numpy", nogil=True)
 jit_inline = njit(cache=True, error_model="numpy", nogil=True, inline="always")
 
