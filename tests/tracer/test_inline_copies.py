@@ -4,7 +4,7 @@ installed, and the IR it copies is the IR numba's own copy makes."""
 import copy
 
 import numba
-from numba.core import inline_closurecall, ir
+from numba.core import inline_closurecall, ir, untyped_passes
 from numba.core.compiler import run_frontend
 
 from tracer.kernel import inline_copies
@@ -47,3 +47,27 @@ def test_a_copy_inside_an_inlining_shares_one_scope_copy():
         assert all(assign.target.scope is scope for assign in twin.find_insts(ir.Assign))
     plain = _blocks_copied(function_ir, inlining=False)
     assert len({id(b.scope) for b in plain.blocks.values()}) == len(function_ir.blocks)
+
+
+def test_a_callee_inlined_three_times_is_translated_once(monkeypatch):
+    """One caller's three call sites of an inlined helper run the helper's untyped passes once
+    (each site still gets a copy of its IR, so the result is right)."""
+    translated = []
+    extract = untyped_passes.ExtractByteCode.run_pass
+
+    def counting(self, state):
+        translated.append(state.func_id.func_qualname)
+        return extract(self, state)
+
+    monkeypatch.setattr(untyped_passes.ExtractByteCode, "run_pass", counting)
+
+    @numba.njit(inline="always")
+    def helper(x):
+        return 2.0 * x + 1.0
+
+    @numba.njit
+    def caller(x):
+        return helper(x) + helper(x + 1.0) * helper(x - 1.0)
+
+    assert caller(1.0) == 3.0 + 5.0 * 1.0
+    assert translated.count(helper.py_func.__qualname__) == 1
