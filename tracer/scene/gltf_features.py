@@ -4,6 +4,7 @@ files"). Loading itself does not depend on these; they are for the user (``tiler
 the API's scene inspection).
 """
 
+import functools
 import json
 import struct
 from pathlib import Path
@@ -68,10 +69,31 @@ MATERIAL_WARNINGS = {
 }
 
 
+JSON_CACHE_SIZE = 8
+"""Parsed glTF documents kept (one load reads its file's JSON several times: ``gltf_json``)."""
+
+
 def gltf_json(path: Path) -> dict | None:
     """The JSON of a .gltf or .glb file, or None for other files or JSON that cannot be read
-    (trimesh reads the file itself; this is for what trimesh does not keep)."""
-    suffix = path.suffix.lower()
+    (trimesh reads the file itself; this is for what trimesh does not keep). Parsed once per
+    version of the file (its resolved path, size and modification time), so the loader's
+    several readers of one file share a parse; callers must not modify the document."""
+    try:
+        resolved = path.resolve()
+        stat = resolved.stat()
+    except (OSError, RuntimeError):
+        return None
+    return _cached_json(resolved, path.suffix.lower(), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=JSON_CACHE_SIZE)
+def _cached_json(path: Path, suffix: str, mtime_ns: int, size: int) -> dict | None:
+    """``_read_json`` of one version of a file (``mtime_ns`` and ``size`` are only its key)."""
+    return _read_json(path, suffix)
+
+
+def _read_json(path: Path, suffix: str) -> dict | None:
+    """The JSON of a file read as ``suffix`` says (``.gltf`` or ``.glb``), or None."""
     try:
         if suffix == ".gltf":
             document = json.loads(path.read_text(encoding="utf-8"))
