@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 from common import (
+    REPO_ROOT,
     Contender,
     interleaved,
     machine_info,
@@ -36,7 +37,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("--scene", default="scenes/lamp-hall/scene.json")
+    parser.add_argument("--scene", default=str(REPO_ROOT / "scenes" / "lamp-hall" / "scene.json"))
     parser.add_argument("--width", type=int, default=120)
     parser.add_argument("--height", type=int, default=80)
     parser.add_argument("--spp", type=int, default=8)
@@ -130,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         "depth_mean": float(np.mean(depths)),
         "depth_max": max(depths),
     }
-    print(f"results written to {write_results('light_tree_cost', payload, info)}")
+    write_results("light_tree_cost", payload, info)
     return 0
 
 
