@@ -10,7 +10,6 @@ jitted loop: microseconds per pick, and the tree's depth.
 
 import argparse
 import statistics
-import time
 
 import numpy as np
 from common import (
@@ -20,6 +19,7 @@ from common import (
     machine_info,
     print_machine,
     print_table,
+    time_call,
     write_results,
 )
 from numba import njit
@@ -111,11 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     u = rng.random(args.picks)
     nodes, child = arrays.light_tree_nodes, arrays.light_tree_child
     _picks(nodes, child, points[:10], u[:10])
-    seconds = []
-    for _ in range(args.repeats):
-        start = time.perf_counter()
-        _picks(nodes, child, points, u)
-        seconds.append(time.perf_counter() - start)
+    seconds = [time_call(lambda: _picks(nodes, child, points, u))[0] for _ in range(args.repeats)]
     pick_us = 1e6 * statistics.median(seconds) / args.picks
     depths = _depths(child, arrays.light_tree_bits)
     print(

@@ -343,14 +343,14 @@ def _collapse(nodes, child, t):
     wide = np.zeros((max(t - 1, 1), NODE * WIDTH))
     wide_child = np.full((max(t - 1, 1), WIDTH), EMPTY, np.int32)
     bits = np.zeros(t, np.uint64)
-    stack = np.empty((MAX_DEPTH + 2) * WIDTH, np.int64)  # binary node, wide node, depth
+    # A stack of binary nodes to make wide ones of: the wide node, its depth and trail.
+    stack = np.zeros((MAX_DEPTH + 2) * WIDTH, np.int64)
+    wide_of = np.zeros((MAX_DEPTH + 2) * WIDTH, np.int64)
+    depth = np.zeros((MAX_DEPTH + 2) * WIDTH, np.int64)
     trails = np.zeros((MAX_DEPTH + 2) * WIDTH, np.uint64)
     slots = np.empty(WIDTH, np.int64)
-    stack[0] = 0
     top = 1
     count = 1
-    depth = np.zeros((MAX_DEPTH + 2) * WIDTH, np.int64)
-    wide_of = np.zeros((MAX_DEPTH + 2) * WIDTH, np.int64)
     while top > 0:
         top -= 1
         b = stack[top]
@@ -371,11 +371,11 @@ def _collapse(nodes, child, t):
                     best = k
             if best < 0:
                 break
-            inner = slots[best]
+            split = slots[best]
             for k in range(n, best + 1, -1):
                 slots[k] = slots[k - 1]
-            slots[best] = inner + 1
-            slots[best + 1] = child[inner]
+            slots[best] = split + 1
+            slots[best + 1] = child[split]
             n += 1
         for k in range(n):
             s = slots[k]
